@@ -1,0 +1,116 @@
+//! Scripted experts: waypoint state machines with privileged access to object poses.
+//!
+//! They produce the same 10-d absolute actions a policy would, optionally with noise
+//! (for noisy / suboptimal demonstrations), and are deterministic given their seed.
+
+pub mod lift;
+
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
+
+use crate::env::Env;
+use crate::error::{EnvError, Result};
+use crate::math::{from_pose, rot6d};
+use crate::rng::EpisodeRng;
+
+/// A policy that maps the environment's current (privileged) state to an action.
+pub trait Expert: Send {
+    /// Called after `Env::reset`.
+    fn reset(&mut self, env: &Env, seed: u64);
+    /// The next action.
+    fn act(&mut self, env: &Env) -> [f64; 10];
+    /// Short name of the current phase (for logging and failure statistics).
+    fn phase(&self) -> &'static str;
+}
+
+/// Options of every expert.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ExpertOptions {
+    /// Std of Gaussian noise on the commanded position (m); 0 = clean demonstrations.
+    pub position_noise: f64,
+    /// Std of Gaussian noise on the grasp yaw (rad).
+    pub yaw_noise: f64,
+}
+
+impl Default for ExpertOptions {
+    fn default() -> Self {
+        Self { position_noise: 0.0, yaw_noise: 0.0 }
+    }
+}
+
+/// Build the expert of a task.
+pub fn make_expert(task: &str, options: ExpertOptions) -> Result<Box<dyn Expert>> {
+    if !(options.position_noise.is_finite() && options.position_noise >= 0.0 && options.yaw_noise.is_finite() && options.yaw_noise >= 0.0) {
+        return Err(EnvError::InvalidConfig("expert noise must be finite and >= 0".into()));
+    }
+    match task {
+        "lift" => Ok(Box::new(lift::LiftExpert::new(options))),
+        other => Err(EnvError::InvalidConfig(format!("no scripted expert for task '{other}'"))),
+    }
+}
+
+/// Shared helpers for waypoint experts.
+pub(crate) struct Waypoints {
+    pub rng: EpisodeRng,
+    pub options: ExpertOptions,
+    /// The position the expert is currently commanding (moves towards waypoints at a bounded speed).
+    pub commanded: Vector3<f64>,
+}
+
+impl Waypoints {
+    pub fn new(options: ExpertOptions) -> Self {
+        Self { rng: EpisodeRng::from_seed(0), options, commanded: Vector3::zeros() }
+    }
+
+    pub fn reset(&mut self, env: &Env, seed: u64) {
+        // Decorrelate the expert's noise stream from the environment's.
+        self.rng = EpisodeRng::from_seed(seed ^ 0x9e37_79b9_7f4a_7c15);
+        self.commanded = env.scene().tcp_pose().translation.vector;
+    }
+
+    /// Move the commanded point towards `goal` by at most `max_step`; true when it is there.
+    pub fn advance(&mut self, goal: Vector3<f64>, max_step: f64) -> bool {
+        let d = goal - self.commanded;
+        if d.norm() <= max_step {
+            self.commanded = goal;
+            true
+        } else {
+            self.commanded += d * (max_step / d.norm());
+            false
+        }
+    }
+
+    /// The action for the commanded point, a rotation and a gripper width (with noise).
+    pub fn action(&mut self, rotation: &UnitQuaternion<f64>, width: f64) -> [f64; 10] {
+        let mut a = [0.0; 10];
+        let sigma = self.options.position_noise;
+        for k in 0..3 {
+            a[k] = self.commanded[k] + if sigma > 0.0 { sigma * self.rng.normal() } else { 0.0 };
+        }
+        a[3..9].copy_from_slice(&rot6d(rotation));
+        a[9] = width;
+        a
+    }
+}
+
+/// Pose of a task object.
+pub(crate) fn object_pose(env: &Env, index: usize) -> Isometry3<f64> {
+    let body = env.task().objects()[index].body;
+    from_pose(env.scene().world.bodies[body].position())
+}
+
+/// A top-down grasp rotation: the TCP rotation at the robot's home posture turned about the
+/// world z axis so that the fingers close across the faces of a box with yaw `box_yaw`.
+/// The turn is the smallest one (|turn| <= 45 degrees) from the home posture, which keeps the
+/// last wrist joint far from its limits.
+pub(crate) fn top_down_grasp(env: &Env, box_yaw: f64) -> UnitQuaternion<f64> {
+    let scene = env.scene();
+    let home = scene.robot.tcp_pose(&scene.base, &env.task().scene_spec().home_q).rotation;
+    let finger_dir = home * (scene.robot.fingers[0].origin.rotation * scene.robot.fingers[0].axis.into_inner());
+    let finger_yaw = finger_dir.y.atan2(finger_dir.x);
+    let quarter = std::f64::consts::FRAC_PI_2;
+    let mut turn = (box_yaw - finger_yaw).rem_euclid(quarter);
+    if turn > quarter / 2.0 {
+        turn -= quarter;
+    }
+    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), turn) * home
+}

@@ -1,0 +1,38 @@
+//! # equigym-envs
+//!
+//! Robot-manipulation tasks on rapier3d physics with a Panda-style arm loaded from a URDF,
+//! usable standalone from Rust:
+//!
+//! ```no_run
+//! use equigym_envs::{Env, EnvConfig, experts::{make_expert, ExpertOptions}};
+//! let mut env = Env::new(EnvConfig::new("lift")).unwrap();
+//! let mut expert = make_expert("lift", ExpertOptions::default()).unwrap();
+//! env.reset(7).unwrap();
+//! expert.reset(&env, 7);
+//! for _ in 0..env.horizon() {
+//!     let action = expert.act(&env);
+//!     let step = env.step(&action).unwrap();
+//!     if step.evaluation.success { break; }
+//! }
+//! ```
+//!
+//! Modules by domain: [`robot`] (URDF, kinematics, IK), [`scene`] (physics world and arm
+//! controller), [`tasks`] (Lift, ...), [`env`] (reset/step/state), [`experts`] (scripted
+//! demonstrators), [`render`] (CPU ray caster), [`layout`] (named observation slices).
+
+pub mod env;
+pub mod error;
+pub mod experts;
+pub mod layout;
+pub mod math;
+pub mod render;
+pub mod rng;
+pub mod robot;
+pub mod scene;
+pub mod tasks;
+
+pub use env::{Env, EnvConfig, StepResult, ACTION_DIM};
+pub use error::{EnvError, Result};
+pub use layout::{Field, FieldKind, Layout};
+pub use scene::PhysicsConfig;
+pub use tasks::{RewardKind, TaskOptions};

@@ -1,0 +1,498 @@
+//! The physical scene: a rapier world with a table, the robot's hand and fingers, and whatever
+//! objects a task adds, plus the arm controller that drives the hand.
+//!
+//! How the robot is simulated (and why):
+//! - The arm's joint state is integrated by the controller ([`ArmController`]): absolute TCP
+//!   targets go through a joint-limited IK, joints move at most at their velocity limits, and the
+//!   resulting hand pose is the *target* of a dynamic hand body. Arm links are posed by forward
+//!   kinematics for rendering; they are not physical bodies.
+//! - The hand and the two fingers are dynamic rigid bodies. The hand is servoed towards its
+//!   target by a velocity servo whose per-substep velocity change is capped by a force and a
+//!   torque limit, and the fingers are prismatic joints with force-capped motors. Everything the
+//!   robot does to the world therefore goes through bounded forces: pressing into the table or
+//!   crushing an object stalls the hand instead of driving it through. Objects are held only by
+//!   contact friction.
+
+use std::sync::Arc;
+
+use nalgebra::{Isometry3, Vector3};
+use rapier3d::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{EnvError, Result};
+use crate::math::{clamp_norm, from_pose, from_vector, to_pose, to_vector};
+use crate::robot::kinematics::rotation_error;
+use crate::robot::{IkOptions, LinkShape, RobotModel, ShapeKind};
+
+/// Collision groups: the robot touches objects and the table, never itself.
+pub const GROUP_ROBOT: Group = Group::GROUP_1;
+pub const GROUP_OBJECT: Group = Group::GROUP_2;
+pub const GROUP_STATIC: Group = Group::GROUP_3;
+
+/// Physics and actuation settings. The defaults are the ones the shipped tasks are tuned for.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PhysicsConfig {
+    /// Physics timestep (s).
+    pub timestep: f64,
+    /// Physics steps per control step (control period = timestep * substeps; 20 Hz by default).
+    pub substeps: usize,
+    pub solver_iterations: usize,
+    /// Friction coefficient of fingers, objects and table.
+    pub friction: f64,
+    /// Cap on the force the arm can apply through the hand (N).
+    pub max_hand_force: f64,
+    /// Cap on the torque the arm can apply through the hand (N m).
+    pub max_hand_torque: f64,
+    /// Cap on each finger's grip force (N).
+    pub max_finger_force: f64,
+    /// Finger travel speed (m/s).
+    pub finger_speed: f64,
+    /// Time constant of the hand's pose servo (s).
+    pub servo_time_constant: f64,
+    /// Whether the arm's joint limits are enforced (turn off for symmetry ablations).
+    pub joint_limits: bool,
+}
+
+impl Default for PhysicsConfig {
+    fn default() -> Self {
+        Self {
+            timestep: 1.0 / 240.0,
+            substeps: 12,
+            solver_iterations: 4,
+            friction: 1.0,
+            max_hand_force: 60.0,
+            max_hand_torque: 6.0,
+            max_finger_force: 40.0,
+            finger_speed: 0.2,
+            servo_time_constant: 0.02,
+            joint_limits: true,
+        }
+    }
+}
+
+impl PhysicsConfig {
+    pub fn control_period(&self) -> f64 {
+        self.timestep * self.substeps as f64
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        let positive = [
+            ("timestep", self.timestep),
+            ("friction", self.friction),
+            ("max_hand_force", self.max_hand_force),
+            ("max_hand_torque", self.max_hand_torque),
+            ("max_finger_force", self.max_finger_force),
+            ("finger_speed", self.finger_speed),
+            ("servo_time_constant", self.servo_time_constant),
+        ];
+        for (name, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(EnvError::InvalidConfig(format!("{name} must be positive and finite, got {v}")));
+            }
+        }
+        if self.substeps == 0 || self.substeps > 1000 || self.solver_iterations == 0 || self.solver_iterations > 100 {
+            return Err(EnvError::InvalidConfig("substeps must be in 1..=1000 and solver_iterations in 1..=100".into()));
+        }
+        Ok(())
+    }
+}
+
+/// Joint-space state of the arm, owned by the controller.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ArmController {
+    /// Commanded joints at the end of the last control step.
+    pub q_cmd: Vec<f64>,
+    /// Joints that reproduce the hand's actual pose (the "measured" joint positions).
+    pub q_meas: Vec<f64>,
+    /// Last IK solution for the commanded target (warm start of the next solve).
+    pub q_des: Vec<f64>,
+    /// Commanded finger travel (half the opening), rate limited.
+    pub finger_cmd: f64,
+}
+
+/// How far the commanded joints may run ahead of the measured ones (rad): bounds the wind-up
+/// when the hand is blocked, so it does not leap when released.
+const MAX_JOINT_LEAD: f64 = 0.15;
+
+/// Handles of the robot's physical parts.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RobotBodies {
+    pub hand: RigidBodyHandle,
+    pub fingers: [RigidBodyHandle; 2],
+    pub finger_joints: [ImpulseJointHandle; 2],
+    pub hand_colliders: Vec<ColliderHandle>,
+    pub finger_colliders: [Vec<ColliderHandle>; 2],
+}
+
+/// Rendering colour of a collider, kept in its user data.
+pub fn colour_code(rgb: [u8; 3]) -> u128 {
+    ((rgb[0] as u128) << 16) | ((rgb[1] as u128) << 8) | rgb[2] as u128 | (1u128 << 32)
+}
+
+/// The world plus the robot.
+pub struct Scene {
+    pub world: PhysicsWorld,
+    pub robot: Arc<RobotModel>,
+    /// The robot model used for control (the same one, or with limits removed).
+    control_model: Arc<RobotModel>,
+    pub base: Isometry3<f64>,
+    pub config: PhysicsConfig,
+    pub bodies: RobotBodies,
+    pub arm: ArmController,
+    pub table_top: f64,
+    pub table_half_extents: [f64; 2],
+    pub ik: IkOptions,
+    frames: Vec<Isometry3<f64>>,
+}
+
+/// The part of a [`Scene`] that changes during an episode, serialisable bit for bit.
+#[derive(Serialize, Deserialize)]
+pub struct SceneState {
+    pub world: PhysicsWorld,
+    pub arm: ArmController,
+}
+
+pub fn shape_of(s: &ShapeKind) -> SharedShape {
+    match s {
+        ShapeKind::Cuboid { half_extents: h } => SharedShape::cuboid(h.x as f32, h.y as f32, h.z as f32),
+        ShapeKind::Cylinder { radius, half_height } => SharedShape::cylinder(*half_height as f32, *radius as f32),
+        ShapeKind::Capsule { radius, half_height } => SharedShape::capsule_z(*half_height as f32, *radius as f32),
+        ShapeKind::Ball { radius } => SharedShape::ball(*radius as f32),
+    }
+}
+
+/// rapier's cylinders and capsules run along y; URDF's along z.
+fn shape_pose(s: &LinkShape) -> Isometry3<f64> {
+    match s.shape {
+        ShapeKind::Cylinder { .. } => s.pose * nalgebra::UnitQuaternion::from_euler_angles(std::f64::consts::FRAC_PI_2, 0.0, 0.0),
+        _ => s.pose,
+    }
+}
+
+/// A link shape as a rapier shape and its pose in the link frame.
+pub fn link_shape(s: &LinkShape) -> (SharedShape, Isometry3<f64>) {
+    (shape_of(&s.shape), shape_pose(s))
+}
+
+impl Scene {
+    /// Build the table, the robot's hand and fingers at joint configuration `q0`.
+    pub fn new(
+        robot: Arc<RobotModel>,
+        base: Isometry3<f64>,
+        q0: &[f64],
+        table_top: f64,
+        table_half_extents: [f64; 2],
+        config: PhysicsConfig,
+    ) -> Result<Self> {
+        config.validate()?;
+        if q0.len() != robot.dof() {
+            return Err(EnvError::WrongLength { what: "initial joint configuration".into(), expected: robot.dof(), got: q0.len() });
+        }
+        let control_model = if config.joint_limits { robot.clone() } else { Arc::new(robot.without_joint_limits()) };
+        let mut world = PhysicsWorld::new();
+        world.gravity = Vector::new(0.0, 0.0, -9.81);
+        let ip = &mut world.integration_parameters;
+        ip.dt = config.timestep as f32;
+        ip.num_solver_iterations = config.solver_iterations;
+        // A finger must not "hold" an object across a gap, which recycled contacts allow.
+        ip.contact_recycling = false;
+
+        let static_groups = InteractionGroups::new(GROUP_STATIC, GROUP_ROBOT | GROUP_OBJECT, InteractionTestMode::And);
+        let table_thickness = 0.05f32;
+        let table = world.insert_body(RigidBodyBuilder::fixed().translation(Vector::new(
+            0.0,
+            0.0,
+            table_top as f32 - table_thickness / 2.0,
+        )));
+        world.insert_collider(
+            ColliderBuilder::cuboid(table_half_extents[0] as f32, table_half_extents[1] as f32, table_thickness / 2.0)
+                .friction(config.friction as f32)
+                .collision_groups(static_groups)
+                .user_data(colour_code([196, 164, 124])),
+            Some(table),
+        );
+        // A floor far below catches anything that falls off the table.
+        let floor = world.insert_body(RigidBodyBuilder::fixed().translation(Vector::new(0.0, 0.0, -0.05)));
+        world.insert_collider(
+            ColliderBuilder::cuboid(3.0, 3.0, 0.05).collision_groups(static_groups).user_data(colour_code([90, 90, 100])),
+            Some(floor),
+        );
+
+        let robot_groups = InteractionGroups::new(GROUP_ROBOT, GROUP_OBJECT | GROUP_STATIC, InteractionTestMode::And);
+        let mut q = q0.to_vec();
+        control_model.clamp_to_limits(&mut q);
+        let hand_pose = robot.hand_pose(&base, &q);
+        let mass_props = |i: &crate::robot::LinkInertia| {
+            MassProperties::new(to_vector(&i.centre_of_mass), i.mass as f32, to_vector(&i.principal_inertia))
+        };
+        let hand = world.insert_body(
+            RigidBodyBuilder::dynamic()
+                .pose(to_pose(&hand_pose))
+                .gravity_scale(0.0)
+                .can_sleep(false)
+                .additional_mass_properties(mass_props(&robot.hand_inertia)),
+        );
+        let mut hand_colliders = Vec::new();
+        for s in &robot.hand_shapes {
+            let (shape, pose) = link_shape(s);
+            hand_colliders.push(world.insert_collider(
+                ColliderBuilder::new(shape)
+                    .position(to_pose(&pose))
+                    .density(0.0)
+                    .friction(config.friction as f32)
+                    .collision_groups(robot_groups)
+                    .user_data(colour_code([235, 235, 235])),
+                Some(hand),
+            ));
+        }
+        let finger_start = (robot.fingers[0].upper * 0.5).max(robot.fingers[0].lower);
+        let mut fingers = Vec::new();
+        let mut finger_joints = Vec::new();
+        let mut finger_colliders = Vec::new();
+        for f in &robot.fingers {
+            let travel = nalgebra::Translation3::from(f.axis.into_inner() * finger_start);
+            let pose = hand_pose * f.origin * travel;
+            let body = world.insert_body(
+                RigidBodyBuilder::dynamic()
+                    .pose(to_pose(&pose))
+                    .gravity_scale(0.0)
+                    .can_sleep(false)
+                    .additional_mass_properties(mass_props(&f.inertia)),
+            );
+            let mut cols = Vec::new();
+            for s in &f.shapes {
+                let (shape, spose) = link_shape(s);
+                cols.push(world.insert_collider(
+                    ColliderBuilder::new(shape)
+                        .position(to_pose(&spose))
+                        .density(0.0)
+                        .friction(config.friction as f32)
+                        .collision_groups(robot_groups)
+                        .user_data(colour_code([60, 60, 60])),
+                    Some(body),
+                ));
+            }
+            // The joint's local x axis is the finger's direction of travel.
+            let align = nalgebra::UnitQuaternion::rotation_between(&Vector3::x(), &f.axis)
+                .unwrap_or_else(|| nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::PI));
+            let frame1 = f.origin * align;
+            let frame2 = Isometry3::from_parts(nalgebra::Translation3::identity(), align);
+            let joint = GenericJointBuilder::new(JointAxesMask::LOCKED_PRISMATIC_AXES)
+                .local_frame1(to_pose(&frame1))
+                .local_frame2(to_pose(&frame2))
+                .limits(JointAxis::LinX, [f.lower as f32, f.upper as f32])
+                .motor_model(JointAxis::LinX, MotorModel::ForceBased)
+                .motor_position(JointAxis::LinX, finger_start as f32, 2000.0, 40.0)
+                .motor_max_force(JointAxis::LinX, config.max_finger_force.min(f.max_effort) as f32)
+                .build();
+            finger_joints.push(world.insert_impulse_joint(hand, body, joint));
+            fingers.push(body);
+            finger_colliders.push(cols);
+        }
+        let bodies = RobotBodies {
+            hand,
+            fingers: [fingers[0], fingers[1]],
+            finger_joints: [finger_joints[0], finger_joints[1]],
+            hand_colliders,
+            finger_colliders: [finger_colliders[0].clone(), finger_colliders[1].clone()],
+        };
+        let arm = ArmController { q_cmd: q.clone(), q_meas: q.clone(), q_des: q, finger_cmd: finger_start };
+        Ok(Self {
+            world,
+            robot,
+            control_model,
+            base,
+            config,
+            bodies,
+            arm,
+            table_top,
+            table_half_extents,
+            ik: IkOptions::default(),
+            frames: Vec::new(),
+        })
+    }
+
+    /// Put the arm at joints `q` (clamped to the limits), at rest, fingers at `finger_travel`.
+    pub fn place_robot(&mut self, q: &[f64], finger_travel: f64) {
+        let mut q = q.to_vec();
+        self.control_model.clamp_to_limits(&mut q);
+        let hand_pose = self.robot.hand_pose(&self.base, &q);
+        let set = |body: &mut RigidBody, pose: &Isometry3<f64>| {
+            body.set_position(to_pose(pose), true);
+            body.set_linvel(Vector::ZERO, true);
+            body.set_angvel(Vector::ZERO, true);
+        };
+        set(&mut self.world.bodies[self.bodies.hand], &hand_pose);
+        let travel = finger_travel.clamp(self.robot.fingers[0].lower, self.robot.fingers[0].upper);
+        let robot = self.robot.clone();
+        for (k, f) in robot.fingers.iter().enumerate() {
+            let pose = hand_pose * f.origin * nalgebra::Translation3::from(f.axis.into_inner() * travel);
+            set(&mut self.world.bodies[self.bodies.fingers[k]], &pose);
+            self.set_finger_motor(k, travel);
+        }
+        self.arm = ArmController { q_cmd: q.clone(), q_meas: q.clone(), q_des: q, finger_cmd: travel };
+    }
+
+    fn set_finger_motor(&mut self, k: usize, travel: f64) {
+        if let Some(j) = self.world.impulse_joints.get_mut(self.bodies.finger_joints[k], true) {
+            j.data.set_motor_position(JointAxis::LinX, travel as f32, 2000.0, 40.0);
+        }
+    }
+
+    pub fn hand_pose(&self) -> Isometry3<f64> {
+        from_pose(self.world.bodies[self.bodies.hand].position())
+    }
+
+    /// World pose of the tool-centre point, from the hand body's actual pose.
+    pub fn tcp_pose(&self) -> Isometry3<f64> {
+        self.hand_pose() * self.robot.tcp_offset
+    }
+
+    /// Travel of each finger (half the opening each), measured from the bodies.
+    pub fn finger_positions(&self) -> [f64; 2] {
+        let hand = self.hand_pose();
+        let mut out = [0.0; 2];
+        for (k, f) in self.robot.fingers.iter().enumerate() {
+            let finger = from_pose(self.world.bodies[self.bodies.fingers[k]].position());
+            let rel = hand.inverse() * finger;
+            let d = rel.translation.vector - f.origin.translation.vector;
+            out[k] = d.dot(&(f.origin.rotation * f.axis.into_inner()));
+        }
+        out
+    }
+
+    /// World poses of the arm frames at the measured joints (for rendering).
+    pub fn arm_frames(&mut self) -> &[Isometry3<f64>] {
+        let mut frames = std::mem::take(&mut self.frames);
+        self.robot.arm_frames(&self.base, &self.arm.q_meas, &mut frames);
+        self.frames = frames;
+        &self.frames
+    }
+
+    /// Whether two colliders are in contact.
+    pub fn touching(&self, a: ColliderHandle, b: ColliderHandle) -> bool {
+        self.world.narrow_phase.contact_pair(a, b).is_some_and(|p| p.has_any_active_contact())
+    }
+
+    /// Whether any collider of `body` touches any of `others`.
+    pub fn body_touches(&self, body: &[ColliderHandle], others: &[ColliderHandle]) -> bool {
+        body.iter().any(|a| others.iter().any(|b| self.touching(*a, *b)))
+    }
+
+    /// Advance one control period towards the absolute TCP target and finger travel.
+    pub fn control_step(&mut self, target: &Isometry3<f64>, finger_travel: f64) {
+        let model = self.control_model.clone();
+        let dof = model.dof();
+        let period = self.config.control_period();
+        let dt = self.config.timestep;
+
+        // Measured joints: the configuration that explains the hand's actual pose.
+        let tcp_now = self.tcp_pose();
+        let mut q_meas = std::mem::take(&mut self.arm.q_meas);
+        model.solve_ik(&self.base, &tcp_now, &mut q_meas, &self.ik);
+        let mut q_des = std::mem::take(&mut self.arm.q_des);
+        model.solve_ik(&self.base, target, &mut q_des, &self.ik);
+
+        let mut q_start = self.arm.q_cmd.clone();
+        for k in 0..dof {
+            q_start[k] = q_start[k].clamp(q_meas[k] - MAX_JOINT_LEAD, q_meas[k] + MAX_JOINT_LEAD);
+        }
+        let mut q_end = q_start.clone();
+        for k in 0..dof {
+            let max = model.joints[k].max_velocity * period;
+            q_end[k] += (q_des[k] - q_start[k]).clamp(-max, max);
+        }
+        model.clamp_to_limits(&mut q_end);
+
+        let f = &self.robot.fingers[0];
+        let travel = finger_travel.clamp(f.lower, f.upper);
+        let hand_mass =
+            self.robot.hand_inertia.mass + self.robot.fingers.iter().map(|f| f.inertia.mass).sum::<f64>();
+        let max_dv = self.config.max_hand_force * dt / hand_mass;
+        let inertia = self.robot.hand_inertia.principal_inertia.max().max(1e-4);
+        let max_dw = self.config.max_hand_torque * dt / inertia;
+        let tau = self.config.servo_time_constant.max(dt);
+        let mut q_s = q_start.clone();
+        let mut prev_target = model.hand_pose(&self.base, &q_start);
+
+        for s in 1..=self.config.substeps {
+            let a = s as f64 / self.config.substeps as f64;
+            for k in 0..dof {
+                q_s[k] = q_start[k] + (q_end[k] - q_start[k]) * a;
+            }
+            let hand_target = model.hand_pose(&self.base, &q_s);
+            let ff_v = (hand_target.translation.vector - prev_target.translation.vector) / dt;
+            let ff_w = rotation_error(&hand_target.rotation, &prev_target.rotation) / dt;
+            prev_target = hand_target;
+
+            // Fingers: rate-limited motor targets.
+            let step = self.config.finger_speed * dt;
+            self.arm.finger_cmd += (travel - self.arm.finger_cmd).clamp(-step, step);
+            let cmd = self.arm.finger_cmd;
+            self.set_finger_motor(0, cmd);
+            self.set_finger_motor(1, cmd);
+
+            // Hand: velocity servo with bounded velocity change (= bounded force and torque).
+            let hand = &self.world.bodies[self.bodies.hand];
+            let pose = from_pose(hand.position());
+            let v = from_vector(hand.linvel());
+            let w = from_vector(hand.angvel());
+            let v_des = clamp_norm(ff_v + (hand_target.translation.vector - pose.translation.vector) / tau, 2.0);
+            let w_des = clamp_norm(ff_w + rotation_error(&hand_target.rotation, &pose.rotation) / tau, 8.0);
+            let dv = clamp_norm(v_des - v, max_dv);
+            let dw = clamp_norm(w_des - w, max_dw);
+            let centre = pose.translation.vector;
+            self.world.bodies[self.bodies.hand].set_linvel(to_vector(&(v + dv)), true);
+            self.world.bodies[self.bodies.hand].set_angvel(to_vector(&(w + dw)), true);
+            // The fingers share the hand's velocity change, as if the force acted on the assembly.
+            for k in 0..2 {
+                let body = &mut self.world.bodies[self.bodies.fingers[k]];
+                let r = from_vector(body.translation()) - centre;
+                let fv = from_vector(body.linvel()) + dv + dw.cross(&r);
+                let fw = from_vector(body.angvel()) + dw;
+                body.set_linvel(to_vector(&fv), true);
+                body.set_angvel(to_vector(&fw), true);
+            }
+            self.world.step();
+        }
+        self.arm.q_cmd = q_end;
+        self.arm.q_meas = q_meas;
+        self.arm.q_des = q_des;
+    }
+
+    /// Serialise the dynamic state (bodies, contacts, joints, controller) to bytes.
+    pub fn save(&self) -> Result<Vec<u8>> {
+        #[derive(Serialize)]
+        struct Ref<'a> {
+            world: &'a PhysicsWorld,
+            arm: &'a ArmController,
+        }
+        postcard::to_stdvec(&Ref { world: &self.world, arm: &self.arm })
+            .map_err(|e| EnvError::InvalidState(format!("cannot serialise the scene: {e}")))
+    }
+
+    /// Restore a state produced by [`Scene::save`] on a scene of the same task.
+    pub fn restore(&mut self, bytes: &[u8]) -> Result<()> {
+        let state: SceneState = postcard::from_bytes(bytes)
+            .map_err(|e| EnvError::InvalidState(format!("cannot decode the scene: {e}")))?;
+        if state.arm.q_cmd.len() != self.robot.dof()
+            || state.world.bodies.len() != self.world.bodies.len()
+            || state.world.colliders.len() != self.world.colliders.len()
+        {
+            return Err(EnvError::InvalidState("the state belongs to a different scene".into()));
+        }
+        let SceneState { world, arm } = state;
+        self.world.islands = world.islands;
+        self.world.broad_phase = world.broad_phase;
+        self.world.narrow_phase = world.narrow_phase;
+        self.world.bodies = world.bodies;
+        self.world.colliders = world.colliders;
+        self.world.impulse_joints = world.impulse_joints;
+        self.world.multibody_joints = world.multibody_joints;
+        self.world.soft_bodies = world.soft_bodies;
+        self.world.integration_parameters = world.integration_parameters;
+        self.world.gravity = world.gravity;
+        self.arm = arm;
+        Ok(())
+    }
+}

@@ -1,0 +1,217 @@
+//! Lift: pick a small cube up from the table (robosuite Lift).
+//!
+//! - Table 0.8 x 0.8, top at z = 0.80; robot base at x = -0.56.
+//! - Cube half-size U[0.020, 0.022], centre x, y in U[-0.03, 0.03], yaw in U[0, 2 pi).
+//! - Success: the cube's centre is more than 4 cm above the table top.
+//! - Observation (22, the paper's Lift table): cube position (3), cube 6D rotation (6), the
+//!   planar vector from the gripper to the cube (2, cube minus gripper), gripper position (3),
+//!   gripper 6D rotation (6), finger positions (2).
+
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use rapier3d::prelude::*;
+
+use super::{range_option, Evaluation, SceneSpec, Task, TaskObject, TaskOptions};
+use crate::error::{EnvError, Result};
+use crate::layout::{FieldKind, Layout};
+use crate::math::{from_pose, rot6d, to_pose};
+use crate::rng::EpisodeRng;
+use crate::scene::{colour_code, Scene, GROUP_OBJECT};
+
+pub const TABLE_TOP: f64 = 0.80;
+/// Height above the table top that counts as lifted.
+pub const LIFT_HEIGHT: f64 = 0.04;
+
+/// The Panda's home posture in robosuite.
+pub fn panda_home() -> Vec<f64> {
+    use std::f64::consts::PI;
+    vec![0.0, PI / 16.0, 0.0, -PI / 2.0 - PI / 3.0, 0.0, PI - 0.2, PI / 4.0]
+}
+
+/// Robot base pose shared by the table-top tasks (robosuite's Panda on its mount).
+pub fn robot_base(table_top: f64) -> Isometry3<f64> {
+    Isometry3::translation(-0.56, 0.0, table_top + 0.112)
+}
+
+pub struct Lift {
+    layout: Layout,
+    objects: Vec<TaskObject>,
+    half_size: f64,
+    size_range: (f64, f64),
+    xy_range: (f64, f64),
+    yaw_range: (f64, f64),
+}
+
+impl Lift {
+    pub fn new(options: &TaskOptions) -> Result<Self> {
+        let size_range = range_option(options, "cube_half_size", (0.020, 0.022))?;
+        if size_range.0 <= 0.005 || size_range.1 > 0.04 {
+            return Err(EnvError::InvalidConfig("cube_half_size must lie in (0.005, 0.04]".into()));
+        }
+        for (name, _, _) in &options.ranges {
+            if !["cube_half_size", "cube_xy", "cube_yaw"].contains(&name.as_str()) {
+                return Err(EnvError::InvalidConfig(format!(
+                    "lift has no range '{name}' (known: cube_half_size, cube_xy, cube_yaw)"
+                )));
+            }
+        }
+        Ok(Self {
+            layout: Layout::new()
+                .with("cube_pos", FieldKind::Position, 3)
+                .with("cube_rot6d", FieldKind::Rotation6d, 6)
+                .with("gripper_to_cube_xy", FieldKind::PlanarVector, 2)
+                .with("gripper_pos", FieldKind::Position, 3)
+                .with("gripper_rot6d", FieldKind::Rotation6d, 6)
+                .with("gripper_joint_pos", FieldKind::Invariant, 2),
+            objects: Vec::new(),
+            half_size: 0.021,
+            size_range,
+            xy_range: range_option(options, "cube_xy", (-0.03, 0.03))?,
+            yaw_range: range_option(options, "cube_yaw", (0.0, std::f64::consts::TAU))?,
+        })
+    }
+
+    fn cube(&self) -> &TaskObject {
+        &self.objects[0]
+    }
+
+    fn resize(&mut self, scene: &mut Scene, half: f64) {
+        self.half_size = half;
+        let h = half as f32;
+        for c in &self.objects[0].colliders {
+            scene.world.colliders[*c].set_shape(SharedShape::cuboid(h, h, h));
+        }
+        self.objects[0].half_extents = Vector3::repeat(half);
+        // Mass follows the new volume (colliders carry the density).
+        scene.world.bodies[self.objects[0].body].recompute_mass_properties_from_colliders(&scene.world.colliders);
+    }
+
+    fn cube_pose(&self, scene: &Scene) -> Isometry3<f64> {
+        from_pose(scene.world.bodies[self.cube().body].position())
+    }
+
+    fn grasped(&self, scene: &Scene) -> bool {
+        let cube = &self.cube().colliders;
+        scene.body_touches(&scene.bodies.finger_colliders[0], cube)
+            && scene.body_touches(&scene.bodies.finger_colliders[1], cube)
+    }
+}
+
+impl Task for Lift {
+    fn id(&self) -> &'static str {
+        "lift"
+    }
+
+    fn horizon(&self) -> usize {
+        400
+    }
+
+    fn observation_layout(&self) -> &Layout {
+        &self.layout
+    }
+
+    fn scene_spec(&self) -> SceneSpec {
+        SceneSpec {
+            table_top: TABLE_TOP,
+            table_half_extents: [0.4, 0.4],
+            robot_base: robot_base(TABLE_TOP),
+            home_q: panda_home(),
+        }
+    }
+
+    fn load_scene(&mut self, scene: &mut Scene) {
+        let h = self.half_size as f32;
+        let body = scene.world.insert_body(
+            RigidBodyBuilder::dynamic().translation(Vector::new(0.0, 0.0, (TABLE_TOP + self.half_size) as f32)),
+        );
+        let collider = scene.world.insert_collider(
+            ColliderBuilder::cuboid(h, h, h)
+                .density(1000.0)
+                .friction(scene.config.friction as f32)
+                .collision_groups(InteractionGroups::new(GROUP_OBJECT, Group::ALL, InteractionTestMode::And))
+                .user_data(colour_code([200, 30, 30])),
+            Some(body),
+        );
+        self.objects = vec![TaskObject {
+            name: "cube",
+            body,
+            colliders: vec![collider],
+            half_extents: Vector3::repeat(self.half_size),
+        }];
+    }
+
+    fn initialise_episode(&mut self, scene: &mut Scene, rng: &mut EpisodeRng) {
+        let half = rng.uniform(self.size_range.0, self.size_range.1);
+        let x = rng.uniform(self.xy_range.0, self.xy_range.1);
+        let y = rng.uniform(self.xy_range.0, self.xy_range.1);
+        let yaw = rng.uniform(self.yaw_range.0, self.yaw_range.1);
+        self.resize(scene, half);
+        let pose = Isometry3::from_parts(
+            Translation3::new(x, y, TABLE_TOP + half),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
+        );
+        let body = &mut scene.world.bodies[self.objects[0].body];
+        body.set_position(to_pose(&pose), true);
+        body.set_linvel(Vector::ZERO, true);
+        body.set_angvel(Vector::ZERO, true);
+    }
+
+    fn observe(&self, scene: &Scene, out: &mut [f64]) {
+        let cube = self.cube_pose(scene);
+        let tcp = scene.tcp_pose();
+        let c = cube.translation.vector;
+        let g = tcp.translation.vector;
+        out[0..3].copy_from_slice(c.as_slice());
+        out[3..9].copy_from_slice(&rot6d(&cube.rotation));
+        out[9] = c.x - g.x;
+        out[10] = c.y - g.y;
+        out[11..14].copy_from_slice(g.as_slice());
+        out[14..20].copy_from_slice(&rot6d(&tcp.rotation));
+        out[20..22].copy_from_slice(&scene.finger_positions());
+    }
+
+    fn evaluate(&self, scene: &Scene) -> Evaluation {
+        let cube = self.cube_pose(scene).translation.vector;
+        let height = cube.z - self.half_size - TABLE_TOP;
+        let reach = (scene.tcp_pose().translation.vector - cube).norm();
+        let grasped = self.grasped(scene);
+        Evaluation {
+            success: cube.z > TABLE_TOP + LIFT_HEIGHT,
+            terms: vec![
+                ("cube_height", height),
+                ("reach_distance", reach),
+                ("grasped", grasped as u8 as f64),
+            ],
+        }
+    }
+
+    fn dense_reward(&self, scene: &Scene, evaluation: &Evaluation) -> f64 {
+        if evaluation.success {
+            return 1.0;
+        }
+        let cube = self.cube_pose(scene).translation.vector;
+        let reach = (scene.tcp_pose().translation.vector - cube).norm();
+        let grasp = if self.grasped(scene) { 0.25 } else { 0.0 };
+        (1.0 - (10.0 * reach).tanh() + grasp) / 2.25
+    }
+
+    fn objects(&self) -> &[TaskObject] {
+        &self.objects
+    }
+
+    fn episode_params(&self) -> Vec<f64> {
+        vec![self.half_size]
+    }
+
+    fn set_episode_params(&mut self, scene: &mut Scene, params: &[f64]) -> Result<()> {
+        match params {
+            [h] if h.is_finite() && *h > 0.0 && *h < 0.1 => {
+                // The collider already has this size: it is part of the restored physics state.
+                let _ = scene;
+                self.half_size = *h;
+                self.objects[0].half_extents = Vector3::repeat(*h);
+                Ok(())
+            }
+            _ => Err(EnvError::InvalidState(format!("lift expects one cube half-size, got {params:?}"))),
+        }
+    }
+}

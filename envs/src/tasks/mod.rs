@@ -1,0 +1,118 @@
+//! Tasks. A task is a small type with the hooks of a ManiSkill3 task: it loads its objects into
+//! the scene, samples an episode's initial state, observes, evaluates success and computes the
+//! reward. Adding a task touches its own module plus one line in [`make_task`].
+
+pub mod lift;
+
+use nalgebra::{Isometry3, Vector3};
+use rapier3d::prelude::{ColliderHandle, RigidBodyHandle};
+
+use crate::error::{EnvError, Result};
+use crate::layout::Layout;
+use crate::rng::EpisodeRng;
+use crate::scene::Scene;
+
+/// Where the robot and table stand for a task.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneSpec {
+    /// Height of the table top (m).
+    pub table_top: f64,
+    pub table_half_extents: [f64; 2],
+    /// Pose of the robot base in the world.
+    pub robot_base: Isometry3<f64>,
+    /// Joint configuration at the start of an episode (before noise).
+    pub home_q: Vec<f64>,
+}
+
+/// A movable object of a task, exposed to experts, renderers and symmetry tools.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TaskObject {
+    pub name: &'static str,
+    pub body: RigidBodyHandle,
+    pub colliders: Vec<ColliderHandle>,
+    /// Half extents of the object's bounding box in its own frame.
+    pub half_extents: Vector3<f64>,
+}
+
+/// The outcome of [`Task::evaluate`]: success and named quantities reported in `info`.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct Evaluation {
+    pub success: bool,
+    pub terms: Vec<(&'static str, f64)>,
+}
+
+/// Which reward an environment returns.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RewardKind {
+    /// 1 on success, 0 otherwise.
+    Sparse,
+    /// A shaped reward in [0, 1] (robosuite-style reaching, grasping and lifting terms).
+    Dense,
+}
+
+impl std::str::FromStr for RewardKind {
+    type Err = EnvError;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "sparse" => Ok(RewardKind::Sparse),
+            "dense" => Ok(RewardKind::Dense),
+            other => Err(EnvError::InvalidConfig(format!("reward must be 'sparse' or 'dense', got '{other}'"))),
+        }
+    }
+}
+
+/// The hooks every task implements.
+pub trait Task: Send + Sync {
+    /// Short identifier ("lift").
+    fn id(&self) -> &'static str;
+    /// Episode length in control steps.
+    fn horizon(&self) -> usize;
+    /// Names, slices and representations of the observation.
+    fn observation_layout(&self) -> &Layout;
+    /// Table and robot placement.
+    fn scene_spec(&self) -> SceneSpec;
+    /// Add the task's objects to a fresh scene.
+    fn load_scene(&mut self, scene: &mut Scene);
+    /// Sample the objects' initial state for a new episode.
+    fn initialise_episode(&mut self, scene: &mut Scene, rng: &mut EpisodeRng);
+    /// Write the observation (length = the layout's dimension).
+    fn observe(&self, scene: &Scene, out: &mut [f64]);
+    /// Success and named terms for `info`.
+    fn evaluate(&self, scene: &Scene) -> Evaluation;
+    /// The shaped reward for an evaluated state.
+    fn dense_reward(&self, scene: &Scene, evaluation: &Evaluation) -> f64;
+    /// The task's movable objects.
+    fn objects(&self) -> &[TaskObject];
+    /// Per-episode parameters that live outside the physics state (object sizes), for saving.
+    fn episode_params(&self) -> Vec<f64>;
+    /// Restore parameters saved by [`Task::episode_params`] after the physics state (which
+    /// already holds the matching shapes) has been restored.
+    fn set_episode_params(&mut self, scene: &mut Scene, params: &[f64]) -> Result<()>;
+}
+
+/// Task options shared by the registry.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct TaskOptions {
+    /// Override of the initial-state ranges: (name, low, high) pairs, task-specific names.
+    pub ranges: Vec<(String, f64, f64)>,
+}
+
+/// All task ids.
+pub const TASK_IDS: &[&str] = &["lift"];
+
+/// Build a task by id.
+pub fn make_task(id: &str, options: &TaskOptions) -> Result<Box<dyn Task>> {
+    match id {
+        "lift" => Ok(Box::new(lift::Lift::new(options)?)),
+        other => Err(EnvError::InvalidConfig(format!("unknown task '{other}'; known tasks: {TASK_IDS:?}"))),
+    }
+}
+
+/// A named sampling range that callers may override.
+pub(crate) fn range_option(options: &TaskOptions, name: &str, default: (f64, f64)) -> Result<(f64, f64)> {
+    match options.ranges.iter().find(|(n, _, _)| n == name) {
+        None => Ok(default),
+        Some((_, lo, hi)) if lo.is_finite() && hi.is_finite() && lo <= hi => Ok((*lo, *hi)),
+        Some((_, lo, hi)) => Err(EnvError::InvalidConfig(format!("range '{name}' = [{lo}, {hi}] is not a finite interval"))),
+    }
+}
