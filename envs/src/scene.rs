@@ -60,8 +60,8 @@ impl Default for PhysicsConfig {
             substeps: 12,
             solver_iterations: 4,
             friction: 1.0,
-            max_hand_force: 60.0,
-            max_hand_torque: 6.0,
+            max_hand_force: 25.0,
+            max_hand_torque: 5.0,
             max_finger_force: 40.0,
             finger_speed: 0.2,
             servo_time_constant: 0.02,
@@ -113,6 +113,9 @@ pub struct ArmController {
 /// How far the commanded joints may run ahead of the measured ones (rad): bounds the wind-up
 /// when the hand is blocked, so it does not leap when released.
 const MAX_JOINT_LEAD: f64 = 0.15;
+
+/// Speed limit of the hand servo (m/s); the Panda's Cartesian limit is 1.7 m/s.
+const MAX_HAND_SPEED: f64 = 1.0;
 
 /// Handles of the robot's physical parts.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -196,9 +199,16 @@ impl Scene {
         ip.num_solver_iterations = config.solver_iterations;
         // A finger must not "hold" an object across a gap, which recycled contacts allow.
         ip.contact_recycling = false;
+        // rapier tolerates 5 mm of penetration by default; objects of 4 cm need tighter contact.
+        ip.normalized_allowed_linear_error = 0.001;
+        // Stiffer contacts against the table: a light cube pressed by the hand sinks < 2 mm
+        // (60 Hz, the default, lets it sink ~5 mm; see examples/physics_sweep.rs).
+        ip.static_contact_softness.natural_frequency = 120.0;
 
         let static_groups = InteractionGroups::new(GROUP_STATIC, GROUP_ROBOT | GROUP_OBJECT, InteractionTestMode::And);
-        let table_thickness = 0.05f32;
+        // The table is a solid block down to the floor: a thin top lets a squeezed object tunnel
+        // through, while a block always pushes it back out through the top.
+        let table_thickness = table_top as f32;
         let table = world.insert_body(RigidBodyBuilder::fixed().translation(Vector::new(
             0.0,
             0.0,
@@ -437,7 +447,7 @@ impl Scene {
             let pose = from_pose(hand.position());
             let v = from_vector(hand.linvel());
             let w = from_vector(hand.angvel());
-            let v_des = clamp_norm(ff_v + (hand_target.translation.vector - pose.translation.vector) / tau, 2.0);
+            let v_des = clamp_norm(ff_v + (hand_target.translation.vector - pose.translation.vector) / tau, MAX_HAND_SPEED);
             let w_des = clamp_norm(ff_w + rotation_error(&hand_target.rotation, &pose.rotation) / tau, 8.0);
             let dv = clamp_norm(v_des - v, max_dv);
             let dw = clamp_norm(w_des - w, max_dw);
