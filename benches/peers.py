@@ -8,7 +8,7 @@ benchmark machines have 2 cores) and every process is pinned to one CPU.
     python benches/peers.py                                   # EquiLift-v0, 3 x 2000 steps
     python benches/peers.py --equigym-ids EquiLift-v0 EquiStack-v0 EquiSquare-v0
     python benches/peers.py --quick                           # smoke test: 1 x 300 steps
-    python benches/peers.py --rust-bin target/release/examples/lift_expert --rust-args 20
+    python benches/peers.py --rust-bin target/release/examples/throughput --rust-args 'lift 4000'
 
 Method (matches shared/bench/peers, so robosuite numbers compare with RESULTS.md): seeded
 uniform-random actions sampled before timing, reset(seed) then --warmup steps, then the
@@ -53,7 +53,8 @@ def parse_args():
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cpu", type=int, default=0, help="CPU every measurement is pinned to")
     ap.add_argument("--quick", action="store_true", help="smoke test: --steps 300 --reps 1 --resets 3")
-    ap.add_argument("--rust-bin", help="pure-Rust example binary to time too (prints '... N steps/s')")
+    ap.add_argument("--rust-bin", help="pure-Rust example binary to time too, e.g. target/release/examples/throughput "
+                         "(its output must contain 'N steps/s')")
     ap.add_argument("--rust-args", default="", help="arguments for --rust-bin, one shell-quoted string")
     ap.add_argument("--robosuite-python", type=Path, default=PEERS_DIR / "venv_robosuite" / "bin" / "python")
     ap.add_argument("--no-robosuite", action="store_true")
@@ -64,6 +65,8 @@ def parse_args():
     if args.quick:
         args.steps, args.reps, args.resets = 300, 1, 3
     args.equigym_ids = [i for s in args.equigym_ids for i in s.split(",") if i]
+    if args.rust_bin and os.sep in args.rust_bin:  # the binary runs with cwd=REPO (assets are repo-relative)
+        args.rust_bin = str(Path(args.rust_bin).resolve())
     return args
 
 
@@ -177,7 +180,9 @@ def bench_rust(args):
     rates = []
     for _ in range(args.reps):
         p = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout, cwd=REPO)
-        found = re.findall(r"([\d.]+)\s*steps/s", p.stdout)
+        # examples/throughput prints "N control steps/s (stepping only: M)"; M excludes resets, like ours.
+        found = (re.findall(r"stepping only:\s*([\d.]+)", p.stdout)
+                 or re.findall(r"([\d.]+)\s*(?:[A-Za-z]+\s+)?steps/s", p.stdout))
         if p.returncode != 0 or not found:
             raise RuntimeError(f"rc={p.returncode}, no 'steps/s' in output: {(p.stdout + p.stderr)[-500:]}")
         rates.append(float(found[-1]))
@@ -257,8 +262,8 @@ def report(meta, rows, rust):
         if "error" in rust:
             lines.append(f"Pure-Rust binary `{rust['cmd']}`: error: {rust['error']}")
         else:
-            lines.append(f"Pure-Rust binary `{rust['cmd']}` (its own workload and policy, not random actions): "
-                         f"{fmt(rust['steps_per_s'])} steps/s (median of {len(rust['steps_per_s_runs'])}); "
+            lines.append(f"Pure-Rust binary `{rust['cmd']}` (its own action policy and step count; median of the rate it prints): "
+                         f"{fmt(rust['steps_per_s'])} steps/s over {len(rust['steps_per_s_runs'])} run(s); "
                          f"last line: `{rust['last_line']}`")
     errors = [(r["id"], side, r[side]["error"]) for r in rows for side in ("equigym", "robosuite")
               if r[side] and "error" in r[side]]

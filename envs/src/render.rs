@@ -7,8 +7,7 @@
 //! and hard shadows.
 
 use nalgebra::{Isometry3, Vector3};
-use rapier3d::parry::query::{Ray, RayCast};
-use rapier3d::parry::shape::Shape;
+use rapier3d::parry::query::Ray;
 use rapier3d::prelude::{Pose, SharedShape, Vector};
 
 use crate::env::Env;

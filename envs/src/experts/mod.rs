@@ -13,7 +13,7 @@ use crate::math::{from_pose, rot6d};
 use crate::rng::EpisodeRng;
 
 /// A policy that maps the environment's current (privileged) state to an action.
-pub trait Expert: Send {
+pub trait Expert: Send + Sync {
     /// Called after `Env::reset`.
     fn reset(&mut self, env: &Env, seed: u64);
     /// The next action.

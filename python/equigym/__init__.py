@@ -1,0 +1,38 @@
+"""equigym: symmetry-aware robot-manipulation environments written in Rust.
+
+Importing the package registers the gymnasium ids (gymnasium 1.x has no plugin entry points):
+
+>>> import gymnasium, equigym
+>>> env = gymnasium.make("EquiLift-v0", render_mode="rgb_array")
+>>> obs, info = env.reset(seed=0)
+"""
+
+from equigym._core import (
+    TASK_IDS,
+    EquigymError,
+    InvalidStateError,
+    ResetNeeded,
+    UrdfError,
+    __version__,
+)
+from equigym._core import Env as CoreEnv
+from equigym._core import Expert
+from equigym.envs import ENV_IDS, EquiEnv, register_envs
+from equigym.rendering import save_gif
+
+register_envs()
+
+__all__ = [
+    "CoreEnv",
+    "ENV_IDS",
+    "EquiEnv",
+    "EquigymError",
+    "Expert",
+    "InvalidStateError",
+    "ResetNeeded",
+    "TASK_IDS",
+    "UrdfError",
+    "__version__",
+    "register_envs",
+    "save_gif",
+]

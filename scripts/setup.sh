@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# Create .venv, install the Python dependencies and build the Rust extension into it.
+# Idempotent: a second run only rebuilds what changed.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PYTHON=${PYTHON:-python3}
+if [ ! -x .venv/bin/python ]; then
+    "$PYTHON" -m venv .venv
+fi
+.venv/bin/python -m pip install -q --upgrade pip
+.venv/bin/python -m pip install -q "maturin>=1.5,<2"
+# --extras installs the package's own dependencies plus the test tools.
+.venv/bin/maturin develop --release --quiet --extras test
