@@ -102,7 +102,7 @@ def test_expert_through_python_lifts_the_cube():
                 wins += 1
                 break
     assert wins >= 19
-    assert info["is_success"] and info["cube_height"] > 0.04
+    assert info["is_success"] and info["cube_height"] > 0.015  # height of the cube's underside
 
 
 def test_dense_reward_and_info_terms():
@@ -123,14 +123,14 @@ def test_episode_truncates_at_400_steps(lift):
 
 
 def test_render_rgb_array():
-    env = gymnasium.make("EquiLift-v0", render_mode="rgb_array", render_width=96, render_height=64)
+    env = gymnasium.make("EquiLift-v0", render_mode="rgb_array", render_width=160, render_height=120)
     env.reset(seed=0)
     frame = env.render()
-    assert frame.shape == (64, 96, 3) and frame.dtype == np.uint8
+    assert frame.shape == (120, 160, 3) and frame.dtype == np.uint8
     assert frame.std() > 10  # a scene, not a blank image
     # The red cube is visible.
     red = (frame[..., 0] > 150) & (frame[..., 1] < 80) & (frame[..., 2] < 80)
-    assert red.sum() > 3
+    assert red.sum() > 20
 
 
 def test_normalized_actions_map_to_absolute():

@@ -36,7 +36,7 @@ pub struct Camera {
 impl Default for Camera {
     /// A three-quarter view of the table from the side opposite the robot.
     fn default() -> Self {
-        Self { eye: Vector3::new(0.85, 0.75, 1.35), target: Vector3::new(-0.12, 0.0, 0.86), fov_y: 45.0 }
+        Self { eye: Vector3::new(0.75, 0.62, 1.38), target: Vector3::new(-0.18, 0.0, 0.95), fov_y: 50.0 }
     }
 }
 

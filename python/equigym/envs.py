@@ -106,9 +106,9 @@ class EquiEnv(gymnasium.Env):
 
     # -- gymnasium API ---------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
+            raise ValueError(f"seed must be None or a non-negative integer, got {seed!r}")
         super().reset(seed=seed)
-        if seed is not None and (not isinstance(seed, (int, np.integer)) or seed < 0):
-            raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
         # The Rust episode seed comes from the gymnasium RNG: seeded resets are reproducible,
         # unseeded ones continue the stream.
         episode_seed = int(seed) if seed is not None else int(self.np_random.integers(0, 2**63 - 1))

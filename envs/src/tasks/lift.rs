@@ -177,6 +177,7 @@ impl Task for Lift {
         Evaluation {
             success: cube.z > TABLE_TOP + LIFT_HEIGHT,
             terms: vec![
+                // Height of the cube's underside above the table.
                 ("cube_height", height),
                 ("reach_distance", reach),
                 ("grasped", grasped as u8 as f64),
