@@ -123,14 +123,14 @@ def test_episode_truncates_at_400_steps(lift):
 
 
 def test_render_rgb_array():
-    env = gymnasium.make("EquiLift-v0", render_mode="rgb_array", render_width=160, render_height=120)
+    env = gymnasium.make("EquiLift-v0", render_mode="rgb_array", render_width=320, render_height=240)
     env.reset(seed=0)
     frame = env.render()
-    assert frame.shape == (120, 160, 3) and frame.dtype == np.uint8
+    assert frame.shape == (240, 320, 3) and frame.dtype == np.uint8
     assert frame.std() > 10  # a scene, not a blank image
     # The red cube is visible.
     red = (frame[..., 0] > 150) & (frame[..., 1] < 80) & (frame[..., 2] < 80)
-    assert red.sum() > 20
+    assert red.sum() > 30
 
 
 def test_normalized_actions_map_to_absolute():

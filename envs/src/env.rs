@@ -201,6 +201,10 @@ impl Env {
         let open = self.scene.robot.fingers[0].upper;
         self.scene.place_robot(&q, open);
         self.task.initialise_episode(&mut self.scene, &mut self.rng);
+        // Move the colliders with their bodies now, so that renders and queries before the
+        // first step see the new placement.
+        let world = &mut self.scene.world;
+        world.bodies.propagate_modified_body_positions_to_colliders(&mut world.colliders);
         self.steps = 0;
         self.in_episode = true;
         self.last_target = self.current_target();

@@ -114,6 +114,11 @@ pub struct ArmController {
 /// when the hand is blocked, so it does not leap when released.
 const MAX_JOINT_LEAD: f64 = 0.15;
 
+/// Finger motor gains (force-based). Tuned with the experts: stiffer or more damped finger
+/// motors on 15 g fingers make grasps squeeze objects out.
+const FINGER_STIFFNESS: f32 = 2000.0;
+const FINGER_DAMPING: f32 = 40.0;
+
 /// Speed limit of the hand servo (m/s); the Panda's Cartesian limit is 1.7 m/s.
 const MAX_HAND_SPEED: f64 = 1.0;
 
@@ -292,7 +297,7 @@ impl Scene {
                 .local_frame2(to_pose(&frame2))
                 .limits(JointAxis::LinX, [f.lower as f32, f.upper as f32])
                 .motor_model(JointAxis::LinX, MotorModel::ForceBased)
-                .motor_position(JointAxis::LinX, finger_start as f32, 2000.0, 40.0)
+                .motor_position(JointAxis::LinX, finger_start as f32, FINGER_STIFFNESS, FINGER_DAMPING)
                 .motor_max_force(JointAxis::LinX, config.max_finger_force.min(f.max_effort) as f32)
                 .build();
             finger_joints.push(world.insert_impulse_joint(hand, body, joint));
@@ -345,7 +350,7 @@ impl Scene {
 
     fn set_finger_motor(&mut self, k: usize, travel: f64) {
         if let Some(j) = self.world.impulse_joints.get_mut(self.bodies.finger_joints[k], true) {
-            j.data.set_motor_position(JointAxis::LinX, travel as f32, 2000.0, 40.0);
+            j.data.set_motor_position(JointAxis::LinX, travel as f32, FINGER_STIFFNESS, FINGER_DAMPING);
         }
     }
 

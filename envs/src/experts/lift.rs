@@ -39,9 +39,8 @@ impl Expert for LiftExpert {
         self.phase = Phase::Approach;
         self.timer = 0;
         let cube = object_pose(env, 0);
-        let (_, _, yaw) = cube.rotation.euler_angles();
-        let yaw = yaw + self.way.options.yaw_noise * self.way.rng.normal();
-        self.rotation = top_down_grasp(env, yaw);
+        let yaw = Waypoints::yaw(&cube) + self.way.options.yaw_noise * self.way.rng.normal();
+        self.rotation = top_down_grasp(env, yaw, std::f64::consts::FRAC_PI_2);
     }
 
     fn act(&mut self, env: &Env) -> [f64; 10] {

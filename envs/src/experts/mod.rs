@@ -4,6 +4,8 @@
 //! (for noisy / suboptimal demonstrations), and are deterministic given their seed.
 
 pub mod lift;
+pub mod square;
+pub mod stack;
 
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 
@@ -44,6 +46,8 @@ pub fn make_expert(task: &str, options: ExpertOptions) -> Result<Box<dyn Expert>
     }
     match task {
         "lift" => Ok(Box::new(lift::LiftExpert::new(options))),
+        "stack" => Ok(Box::new(stack::StackExpert::new(options))),
+        "square" => Ok(Box::new(square::SquareExpert::new(options))),
         other => Err(EnvError::InvalidConfig(format!("no scripted expert for task '{other}'"))),
     }
 }
@@ -79,6 +83,12 @@ impl Waypoints {
         }
     }
 
+    /// Yaw of an object about the world z axis.
+    pub fn yaw(pose: &Isometry3<f64>) -> f64 {
+        let x = pose.rotation * Vector3::x();
+        x.y.atan2(x.x)
+    }
+
     /// The action for the commanded point, a rotation and a gripper width (with noise).
     pub fn action(&mut self, rotation: &UnitQuaternion<f64>, width: f64) -> [f64; 10] {
         let mut a = [0.0; 10];
@@ -99,18 +109,17 @@ pub(crate) fn object_pose(env: &Env, index: usize) -> Isometry3<f64> {
 }
 
 /// A top-down grasp rotation: the TCP rotation at the robot's home posture turned about the
-/// world z axis so that the fingers close across the faces of a box with yaw `box_yaw`.
-/// The turn is the smallest one (|turn| <= 45 degrees) from the home posture, which keeps the
-/// last wrist joint far from its limits.
-pub(crate) fn top_down_grasp(env: &Env, box_yaw: f64) -> UnitQuaternion<f64> {
+/// world z axis so that the fingers close along `finger_yaw` modulo `period` (pi/2 for the
+/// faces of a square box, pi for a bar). The turn is the smallest one (|turn| <= period / 2)
+/// from the home posture, which keeps the last wrist joint far from its limits.
+pub(crate) fn top_down_grasp(env: &Env, finger_yaw: f64, period: f64) -> UnitQuaternion<f64> {
     let scene = env.scene();
     let home = scene.robot.tcp_pose(&scene.base, &env.task().scene_spec().home_q).rotation;
     let finger_dir = home * (scene.robot.fingers[0].origin.rotation * scene.robot.fingers[0].axis.into_inner());
-    let finger_yaw = finger_dir.y.atan2(finger_dir.x);
-    let quarter = std::f64::consts::FRAC_PI_2;
-    let mut turn = (box_yaw - finger_yaw).rem_euclid(quarter);
-    if turn > quarter / 2.0 {
-        turn -= quarter;
+    let home_finger_yaw = finger_dir.y.atan2(finger_dir.x);
+    let mut turn = (finger_yaw - home_finger_yaw).rem_euclid(period);
+    if turn > period / 2.0 {
+        turn -= period;
     }
     UnitQuaternion::from_axis_angle(&Vector3::z_axis(), turn) * home
 }

@@ -7,15 +7,16 @@
 //!   planar vector from the gripper to the cube (2, cube minus gripper), gripper position (3),
 //!   gripper 6D rotation (6), finger positions (2).
 
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Vector3};
 use rapier3d::prelude::*;
 
+use super::common;
 use super::{range_option, Evaluation, SceneSpec, Task, TaskObject, TaskOptions};
 use crate::error::{EnvError, Result};
 use crate::layout::{FieldKind, Layout};
-use crate::math::{from_pose, rot6d, to_pose};
+use crate::math::rot6d;
 use crate::rng::EpisodeRng;
-use crate::scene::{colour_code, Scene, GROUP_OBJECT};
+use crate::scene::Scene;
 
 pub const TABLE_TOP: f64 = 0.80;
 /// Height above the table top that counts as lifted.
@@ -47,21 +48,15 @@ impl Lift {
         if size_range.0 <= 0.005 || size_range.1 > 0.04 {
             return Err(EnvError::InvalidConfig("cube_half_size must lie in (0.005, 0.04]".into()));
         }
-        for (name, _, _) in &options.ranges {
-            if !["cube_half_size", "cube_xy", "cube_yaw"].contains(&name.as_str()) {
-                return Err(EnvError::InvalidConfig(format!(
-                    "lift has no range '{name}' (known: cube_half_size, cube_xy, cube_yaw)"
-                )));
-            }
-        }
+        super::check_range_names("lift", options, &["cube_half_size", "cube_xy", "cube_yaw"])?;
+        super::variant("lift", options, "D0", &["D0"])?;
         Ok(Self {
-            layout: Layout::new()
-                .with("cube_pos", FieldKind::Position, 3)
-                .with("cube_rot6d", FieldKind::Rotation6d, 6)
-                .with("gripper_to_cube_xy", FieldKind::PlanarVector, 2)
-                .with("gripper_pos", FieldKind::Position, 3)
-                .with("gripper_rot6d", FieldKind::Rotation6d, 6)
-                .with("gripper_joint_pos", FieldKind::Invariant, 2),
+            layout: common::with_gripper_fields(
+                Layout::new()
+                    .with("cube_pos", FieldKind::Position, 3)
+                    .with("cube_rot6d", FieldKind::Rotation6d, 6)
+                    .with("gripper_to_cube_xy", FieldKind::PlanarVector, 2),
+            ),
             objects: Vec::new(),
             half_size: 0.021,
             size_range,
@@ -86,13 +81,11 @@ impl Lift {
     }
 
     fn cube_pose(&self, scene: &Scene) -> Isometry3<f64> {
-        from_pose(scene.world.bodies[self.cube().body].position())
+        common::pose_of(scene, self.cube())
     }
 
     fn grasped(&self, scene: &Scene) -> bool {
-        let cube = &self.cube().colliders;
-        scene.body_touches(&scene.bodies.finger_colliders[0], cube)
-            && scene.body_touches(&scene.bodies.finger_colliders[1], cube)
+        common::grasped(scene, self.cube())
     }
 }
 
@@ -119,24 +112,8 @@ impl Task for Lift {
     }
 
     fn load_scene(&mut self, scene: &mut Scene) {
-        let h = self.half_size as f32;
-        let body = scene.world.insert_body(
-            RigidBodyBuilder::dynamic().translation(Vector::new(0.0, 0.0, (TABLE_TOP + self.half_size) as f32)),
-        );
-        let collider = scene.world.insert_collider(
-            ColliderBuilder::cuboid(h, h, h)
-                .density(1000.0)
-                .friction(scene.config.friction as f32)
-                .collision_groups(InteractionGroups::new(GROUP_OBJECT, Group::ALL, InteractionTestMode::And))
-                .user_data(colour_code([200, 30, 30])),
-            Some(body),
-        );
-        self.objects = vec![TaskObject {
-            name: "cube",
-            body,
-            colliders: vec![collider],
-            half_extents: Vector3::repeat(self.half_size),
-        }];
+        let cube = common::add_box(scene, "cube", Vector3::repeat(self.half_size), [200, 30, 30]);
+        self.objects = vec![cube];
     }
 
     fn initialise_episode(&mut self, scene: &mut Scene, rng: &mut EpisodeRng) {
@@ -145,28 +122,18 @@ impl Task for Lift {
         let y = rng.uniform(self.xy_range.0, self.xy_range.1);
         let yaw = rng.uniform(self.yaw_range.0, self.yaw_range.1);
         self.resize(scene, half);
-        let pose = Isometry3::from_parts(
-            Translation3::new(x, y, TABLE_TOP + half),
-            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
-        );
-        let body = &mut scene.world.bodies[self.objects[0].body];
-        body.set_position(to_pose(&pose), true);
-        body.set_linvel(Vector::ZERO, true);
-        body.set_angvel(Vector::ZERO, true);
+        common::place(scene, &self.objects[0], &common::yaw_pose(x, y, TABLE_TOP + half, yaw));
     }
 
     fn observe(&self, scene: &Scene, out: &mut [f64]) {
         let cube = self.cube_pose(scene);
-        let tcp = scene.tcp_pose();
         let c = cube.translation.vector;
-        let g = tcp.translation.vector;
+        let g = scene.tcp_pose().translation.vector;
         out[0..3].copy_from_slice(c.as_slice());
         out[3..9].copy_from_slice(&rot6d(&cube.rotation));
         out[9] = c.x - g.x;
         out[10] = c.y - g.y;
-        out[11..14].copy_from_slice(g.as_slice());
-        out[14..20].copy_from_slice(&rot6d(&tcp.rotation));
-        out[20..22].copy_from_slice(&scene.finger_positions());
+        common::observe_gripper(scene, &mut out[11..22]);
     }
 
     fn evaluate(&self, scene: &Scene) -> Evaluation {

@@ -2,7 +2,10 @@
 //! the scene, samples an episode's initial state, observes, evaluates success and computes the
 //! reward. Adding a task touches its own module plus one line in [`make_task`].
 
+pub mod common;
 pub mod lift;
+pub mod square;
+pub mod stack;
 
 use nalgebra::{Isometry3, Vector3};
 use rapier3d::prelude::{ColliderHandle, RigidBodyHandle};
@@ -93,17 +96,21 @@ pub trait Task: Send + Sync {
 /// Task options shared by the registry.
 #[derive(Clone, Debug, PartialEq, Default)]
 pub struct TaskOptions {
+    /// Reset distribution variant ("D0", "D1", "D2"; MimicGen's naming), None = the task's default.
+    pub variant: Option<String>,
     /// Override of the initial-state ranges: (name, low, high) pairs, task-specific names.
     pub ranges: Vec<(String, f64, f64)>,
 }
 
 /// All task ids.
-pub const TASK_IDS: &[&str] = &["lift"];
+pub const TASK_IDS: &[&str] = &["lift", "stack", "square"];
 
 /// Build a task by id.
 pub fn make_task(id: &str, options: &TaskOptions) -> Result<Box<dyn Task>> {
     match id {
         "lift" => Ok(Box::new(lift::Lift::new(options)?)),
+        "stack" => Ok(Box::new(stack::Stack::new(options)?)),
+        "square" => Ok(Box::new(square::Square::new(options)?)),
         other => Err(EnvError::InvalidConfig(format!("unknown task '{other}'; known tasks: {TASK_IDS:?}"))),
     }
 }
@@ -114,5 +121,25 @@ pub(crate) fn range_option(options: &TaskOptions, name: &str, default: (f64, f64
         None => Ok(default),
         Some((_, lo, hi)) if lo.is_finite() && hi.is_finite() && lo <= hi => Ok((*lo, *hi)),
         Some((_, lo, hi)) => Err(EnvError::InvalidConfig(format!("range '{name}' = [{lo}, {hi}] is not a finite interval"))),
+    }
+}
+
+/// Reject range names a task does not know.
+pub(crate) fn check_range_names(task: &str, options: &TaskOptions, known: &[&str]) -> Result<()> {
+    for (name, _, _) in &options.ranges {
+        if !known.contains(&name.as_str()) {
+            return Err(EnvError::InvalidConfig(format!("{task} has no range '{name}' (known: {})", known.join(", "))));
+        }
+    }
+    Ok(())
+}
+
+/// The variant a task runs, checked against the ones it offers.
+pub(crate) fn variant<'a>(task: &str, options: &'a TaskOptions, default: &'a str, offered: &[&str]) -> Result<&'a str> {
+    let v = options.variant.as_deref().unwrap_or(default);
+    if offered.contains(&v) {
+        Ok(v)
+    } else {
+        Err(EnvError::InvalidConfig(format!("{task} has no variant '{v}' (offered: {})", offered.join(", "))))
     }
 }
