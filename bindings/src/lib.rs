@@ -55,7 +55,7 @@ pub struct Env {
 #[pymethods]
 impl Env {
     #[new]
-    #[pyo3(signature = (task, *, reward="sparse", urdf=None, joint_limits=true, init_joint_noise=0.02, horizon=None, physics=None, ranges=None))]
+    #[pyo3(signature = (task, *, reward="sparse", urdf=None, joint_limits=true, init_joint_noise=0.02, horizon=None, physics=None, ranges=None, variant=None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         task: &str,
@@ -66,6 +66,7 @@ impl Env {
         horizon: Option<usize>,
         physics: Option<&Bound<'_, PyDict>>,
         ranges: Option<&Bound<'_, PyDict>>,
+        variant: Option<String>,
     ) -> PyResult<Self> {
         let mut config = EnvConfig::new(task);
         config.reward = reward.parse::<RewardKind>().map_err(to_py)?;
@@ -91,8 +92,9 @@ impl Env {
                 }
             }
         }
+        config.task_options.variant = variant;
         if let Some(ranges) = ranges {
-            let mut options = TaskOptions::default();
+            let mut options = TaskOptions { variant: config.task_options.variant.clone(), ..TaskOptions::default() };
             for (key, value) in ranges.iter() {
                 let (lo, hi): (f64, f64) = value.extract().map_err(|_| {
                     EquigymError::new_err(format!("range '{key}' must be a (low, high) pair of numbers"))

@@ -119,6 +119,9 @@ const MAX_JOINT_LEAD: f64 = 0.15;
 const FINGER_STIFFNESS: f32 = 2000.0;
 const FINGER_DAMPING: f32 = 40.0;
 
+/// Finger pads are rubber: their friction is this multiple of the scene's.
+const FINGER_PAD_FRICTION: f64 = 2.0;
+
 /// Speed limit of the hand servo (m/s); the Panda's Cartesian limit is 1.7 m/s.
 const MAX_HAND_SPEED: f64 = 1.0;
 
@@ -281,7 +284,7 @@ impl Scene {
                     ColliderBuilder::new(shape)
                         .position(to_pose(&spose))
                         .density(0.0)
-                        .friction(config.friction as f32)
+                        .friction((config.friction * FINGER_PAD_FRICTION) as f32)
                         .collision_groups(robot_groups)
                         .user_data(colour_code([60, 60, 60])),
                     Some(body),

@@ -26,6 +26,7 @@ class Env:
         horizon: int | None = None,
         physics: dict[str, float] | None = None,
         ranges: dict[str, tuple[float, float]] | None = None,
+        variant: str | None = None,
     ) -> None: ...
     def reset(self, seed: int) -> npt.NDArray[np.float64]: ...
     def step(

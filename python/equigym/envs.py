@@ -19,7 +19,7 @@ from gymnasium import spaces
 from equigym import _core
 
 #: gymnasium id -> Rust task id. Bump the version when physics, observations or rewards change.
-ENV_IDS: dict[str, str] = {"EquiLift-v0": "lift"}
+ENV_IDS: dict[str, str] = {"EquiLift-v0": "lift", "EquiStack-v0": "stack", "EquiSquare-v0": "square"}
 
 _ACTION_MODES = ("absolute", "normalized")
 
@@ -28,7 +28,7 @@ class EquiEnv(gymnasium.Env):
     """One equigym task as a :class:`gymnasium.Env`.
 
     Args:
-        task: Rust task id (``"lift"``).
+        task: Rust task id (``"lift"``, ``"stack"``, ``"square"``).
         render_mode: ``None`` or ``"rgb_array"``.
         reward: ``"sparse"`` (1 on success, else 0) or ``"dense"`` (shaped, in [0, 1]).
         action_mode: ``"absolute"`` (raw metres / 6D rotation) or ``"normalized"`` ([-1, 1]).
@@ -41,6 +41,8 @@ class EquiEnv(gymnasium.Env):
             friction, max_hand_force, max_hand_torque, max_finger_force, finger_speed,
             servo_time_constant).
         ranges: overrides of the initial-state ranges, name -> (low, high).
+        variant: reset distribution, ``"D0"``, ``"D1"`` or ``"D2"`` (default: Stack D1,
+            Square D2; Lift has only its own).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -59,6 +61,7 @@ class EquiEnv(gymnasium.Env):
         render_height: int = 256,
         physics: dict[str, float] | None = None,
         ranges: dict[str, tuple[float, float]] | None = None,
+        variant: str | None = None,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
@@ -75,6 +78,7 @@ class EquiEnv(gymnasium.Env):
             horizon=horizon,
             physics=physics,
             ranges=ranges,
+            variant=variant,
         )
         self.render_mode = render_mode
         self.action_mode = action_mode

@@ -1,0 +1,71 @@
+//! Stack and Square: experts, and success decided by contact physics.
+
+use equigym_envs::experts::{make_expert, ExpertOptions};
+use equigym_envs::tasks::common::{place, pose_of, yaw_pose};
+use equigym_envs::tasks::{square, stack};
+use equigym_envs::{Env, EnvConfig};
+
+fn hold_steps(env: &mut Env, n: usize) -> bool {
+    let hold = env.current_target();
+    let mut success = false;
+    for _ in 0..n {
+        success = env.step(&hold).unwrap().evaluation.success;
+    }
+    success
+}
+
+#[test]
+fn stack_expert_succeeds_on_at_least_90_percent_of_200_seeds() {
+    let mut env = Env::new(EnvConfig::new("stack")).unwrap();
+    let mut expert = make_expert("stack", ExpertOptions::default()).unwrap();
+    let mut wins = 0;
+    for seed in 0..200 {
+        env.reset(seed).unwrap();
+        expert.reset(&env, seed);
+        for _ in 0..env.horizon() {
+            let a = expert.act(&env);
+            if env.step(&a).unwrap().evaluation.success {
+                wins += 1;
+                break;
+            }
+        }
+    }
+    assert!(wins >= 180, "stack expert: {wins}/200");
+}
+
+#[test]
+fn stack_success_needs_cube_a_resting_on_cube_b() {
+    let mut env = Env::new(EnvConfig::new("stack")).unwrap();
+    env.reset(0).unwrap();
+    let objects = env.task().objects().to_vec();
+    let top = env.scene().table_top;
+    // A beside B, on the table: no success.
+    place(env.scene_mut(), &objects[1], &yaw_pose(0.1, 0.1, top + stack::HALF_B, 0.0));
+    place(env.scene_mut(), &objects[0], &yaw_pose(0.1, -0.1, top + stack::HALF_A, 0.0));
+    assert!(!hold_steps(&mut env, 5));
+    // A dropped onto B: success once it rests there.
+    place(env.scene_mut(), &objects[0], &yaw_pose(0.1, 0.1, top + 2.0 * stack::HALF_B + stack::HALF_A + 0.01, 0.3));
+    assert!(hold_steps(&mut env, 10));
+}
+
+#[test]
+fn the_nut_goes_down_the_peg_only_through_its_hole() {
+    let mut env = Env::new(EnvConfig::new("square")).unwrap();
+    env.reset(0).unwrap();
+    let objects = env.task().objects().to_vec();
+    let top = env.scene().table_top;
+    let peg = pose_of(env.scene(), &objects[1]).translation.vector;
+    let above = top + 2.0 * square::PEG_HALF[2] + 0.03;
+    // Dropped with the hole over the peg (any yaw), the nut slides down onto the table.
+    place(env.scene_mut(), &objects[0], &yaw_pose(peg.x, peg.y, above, 0.7));
+    assert!(hold_steps(&mut env, 30), "the nut should slide down the peg");
+    let nut = pose_of(env.scene(), &objects[0]).translation.vector;
+    assert!(nut.z < top + 0.03, "nut at {nut:?}");
+    // Dropped with its solid handle onto the peg, it cannot pass the peg: it tips off beside it.
+    env.reset(0).unwrap();
+    let handle = square::handle_centre().x;
+    place(env.scene_mut(), &objects[0], &yaw_pose(peg.x - handle, peg.y, above, 0.0));
+    assert!(!hold_steps(&mut env, 40));
+    let nut = pose_of(env.scene(), &objects[0]).translation.vector;
+    assert!((nut.xy() - peg.xy()).norm() > 0.03, "the nut went through the peg: {nut:?}");
+}
