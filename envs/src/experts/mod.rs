@@ -52,6 +52,34 @@ pub fn make_expert(task: &str, options: ExpertOptions) -> Result<Box<dyn Expert>
     }
 }
 
+/// The phases of the pick-and-place experts (Lift uses the first four).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Phase {
+    Approach,
+    Descend,
+    Close,
+    Lift,
+    Carry,
+    Lower,
+    Release,
+    Retreat,
+}
+
+impl Phase {
+    pub fn name(self) -> &'static str {
+        match self {
+            Phase::Approach => "approach",
+            Phase::Descend => "descend",
+            Phase::Close => "close",
+            Phase::Lift => "lift",
+            Phase::Carry => "carry",
+            Phase::Lower => "lower",
+            Phase::Release => "release",
+            Phase::Retreat => "retreat",
+        }
+    }
+}
+
 /// Shared helpers for waypoint experts.
 pub(crate) struct Waypoints {
     pub rng: EpisodeRng,

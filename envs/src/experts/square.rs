@@ -3,21 +3,9 @@
 
 use nalgebra::{Point3, UnitQuaternion, Vector3};
 
-use super::{object_pose, top_down_grasp, Expert, ExpertOptions, Waypoints};
+use super::{object_pose, top_down_grasp, Expert, ExpertOptions, Phase, Waypoints};
 use crate::env::Env;
 use crate::tasks::square::{handle_centre, NUT_HALF_HEIGHT, PEG_HALF};
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Phase {
-    Approach,
-    Descend,
-    Close,
-    Lift,
-    Carry,
-    Lower,
-    Release,
-    Retreat,
-}
 
 pub struct SquareExpert {
     way: Waypoints,
@@ -96,15 +84,6 @@ impl Expert for SquareExpert {
     }
 
     fn phase(&self) -> &'static str {
-        match self.phase {
-            Phase::Approach => "approach",
-            Phase::Descend => "descend",
-            Phase::Close => "close",
-            Phase::Lift => "lift",
-            Phase::Carry => "carry",
-            Phase::Lower => "lower",
-            Phase::Release => "release",
-            Phase::Retreat => "retreat",
-        }
+        self.phase.name()
     }
 }

@@ -2,21 +2,9 @@
 
 use nalgebra::{UnitQuaternion, Vector3};
 
-use super::{object_pose, top_down_grasp, Expert, ExpertOptions, Waypoints};
+use super::{object_pose, top_down_grasp, Expert, ExpertOptions, Phase, Waypoints};
 use crate::env::Env;
 use crate::tasks::stack::{HALF_A, HALF_B};
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Phase {
-    Approach,
-    Descend,
-    Close,
-    Lift,
-    Carry,
-    Lower,
-    Release,
-    Retreat,
-}
 
 pub struct StackExpert {
     way: Waypoints,
@@ -85,15 +73,6 @@ impl Expert for StackExpert {
     }
 
     fn phase(&self) -> &'static str {
-        match self.phase {
-            Phase::Approach => "approach",
-            Phase::Descend => "descend",
-            Phase::Close => "close",
-            Phase::Lift => "lift",
-            Phase::Carry => "carry",
-            Phase::Lower => "lower",
-            Phase::Release => "release",
-            Phase::Retreat => "retreat",
-        }
+        self.phase.name()
     }
 }

@@ -4,7 +4,7 @@
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rapier3d::prelude::*;
 
-use super::TaskObject;
+use super::{SceneSpec, TaskObject};
 use crate::layout::{FieldKind, Layout};
 use crate::math::{from_pose, rot6d, to_pose};
 use crate::scene::{colour_code, Scene, GROUP_OBJECT, GROUP_STATIC};
@@ -139,5 +139,16 @@ impl PlacementRange {
     /// Square xy range of half-width `r` around the table centre with a yaw range.
     pub fn square(r: f64, yaw: (f64, f64)) -> Self {
         Self { x: (-r, r), y: (-r, r), yaw }
+    }
+}
+
+/// The robosuite table-top scene every task uses: a 0.8 x 0.8 table with its top at
+/// `table_top`, the Panda at x = -0.56 on its mount, in robosuite's home posture.
+pub fn table_top_scene(table_top: f64) -> SceneSpec {
+    SceneSpec {
+        table_top,
+        table_half_extents: [0.4, 0.4],
+        robot_base: super::lift::robot_base(table_top),
+        home_q: super::lift::panda_home(),
     }
 }

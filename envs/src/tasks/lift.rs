@@ -103,12 +103,7 @@ impl Task for Lift {
     }
 
     fn scene_spec(&self) -> SceneSpec {
-        SceneSpec {
-            table_top: TABLE_TOP,
-            table_half_extents: [0.4, 0.4],
-            robot_base: robot_base(TABLE_TOP),
-            home_q: panda_home(),
-        }
+        common::table_top_scene(TABLE_TOP)
     }
 
     fn load_scene(&mut self, scene: &mut Scene) {

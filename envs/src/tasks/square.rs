@@ -94,12 +94,7 @@ impl Task for Square {
     }
 
     fn scene_spec(&self) -> SceneSpec {
-        SceneSpec {
-            table_top: TABLE_TOP,
-            table_half_extents: [0.4, 0.4],
-            robot_base: super::lift::robot_base(TABLE_TOP),
-            home_q: super::lift::panda_home(),
-        }
+        common::table_top_scene(TABLE_TOP)
     }
 
     fn load_scene(&mut self, scene: &mut Scene) {
