@@ -44,6 +44,13 @@ pub struct Evaluation {
     pub terms: Vec<(&'static str, f64)>,
 }
 
+impl Evaluation {
+    /// The named term, or 0 when the task reports no such term.
+    pub fn term(&self, name: &str) -> f64 {
+        self.terms.iter().find(|t| t.0 == name).map_or(0.0, |t| t.1)
+    }
+}
+
 /// Which reward an environment returns.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RewardKind {
@@ -87,10 +94,19 @@ pub trait Task: Send + Sync {
     /// The task's movable objects.
     fn objects(&self) -> &[TaskObject];
     /// Per-episode parameters that live outside the physics state (object sizes), for saving.
-    fn episode_params(&self) -> Vec<f64>;
+    /// Tasks whose episodes differ only in poses have none.
+    fn episode_params(&self) -> Vec<f64> {
+        Vec::new()
+    }
     /// Restore parameters saved by [`Task::episode_params`] after the physics state (which
     /// already holds the matching shapes) has been restored.
-    fn set_episode_params(&mut self, scene: &mut Scene, params: &[f64]) -> Result<()>;
+    fn set_episode_params(&mut self, _scene: &mut Scene, params: &[f64]) -> Result<()> {
+        if params.is_empty() {
+            Ok(())
+        } else {
+            Err(EnvError::InvalidState(format!("task '{}' has no episode parameters, got {params:?}", self.id())))
+        }
+    }
 }
 
 /// Task options shared by the registry.

@@ -165,11 +165,10 @@ impl Task for Square {
         if e.success {
             return 1.0;
         }
-        let term = |k: &str| e.terms.iter().find(|t| t.0 == k).map_or(0.0, |t| t.1);
-        let grasped = term("grasped") > 0.5;
-        let reach = 0.1 * (1.0 - (10.0 * term("reach_distance")).tanh()) + if grasped { 0.25 } else { 0.0 };
-        let lift = if grasped && term("nut_height") > 0.01 {
-            0.35 + 0.35 * (1.0 - (10.0 * term("nut_peg_xy_distance")).tanh())
+        let grasped = e.term("grasped") > 0.5;
+        let reach = 0.1 * (1.0 - (10.0 * e.term("reach_distance")).tanh()) + if grasped { 0.25 } else { 0.0 };
+        let lift = if grasped && e.term("nut_height") > 0.01 {
+            0.35 + 0.35 * (1.0 - (10.0 * e.term("nut_peg_xy_distance")).tanh())
         } else {
             0.0
         };
@@ -178,17 +177,5 @@ impl Task for Square {
 
     fn objects(&self) -> &[TaskObject] {
         &self.objects
-    }
-
-    fn episode_params(&self) -> Vec<f64> {
-        Vec::new()
-    }
-
-    fn set_episode_params(&mut self, _scene: &mut Scene, params: &[f64]) -> Result<()> {
-        if params.is_empty() {
-            Ok(())
-        } else {
-            Err(EnvError::InvalidState("square has no episode parameters".into()))
-        }
     }
 }

@@ -125,11 +125,10 @@ impl Task for Stack {
         if e.success {
             return 1.0;
         }
-        let term = |k: &str| e.terms.iter().find(|t| t.0 == k).map_or(0.0, |t| t.1);
-        let grasped = term("grasped") > 0.5;
-        let reach = 0.25 * (1.0 - (10.0 * term("reach_distance")).tanh()) + if grasped { 0.25 } else { 0.0 };
-        let lift = if grasped && term("cubeA_height") > 0.01 {
-            1.0 + 0.5 * (1.0 - (10.0 * term("cubes_xy_distance")).tanh())
+        let grasped = e.term("grasped") > 0.5;
+        let reach = 0.25 * (1.0 - (10.0 * e.term("reach_distance")).tanh()) + if grasped { 0.25 } else { 0.0 };
+        let lift = if grasped && e.term("cubeA_height") > 0.01 {
+            1.0 + 0.5 * (1.0 - (10.0 * e.term("cubes_xy_distance")).tanh())
         } else {
             0.0
         };
@@ -138,17 +137,5 @@ impl Task for Stack {
 
     fn objects(&self) -> &[TaskObject] {
         &self.objects
-    }
-
-    fn episode_params(&self) -> Vec<f64> {
-        Vec::new()
-    }
-
-    fn set_episode_params(&mut self, _scene: &mut Scene, params: &[f64]) -> Result<()> {
-        if params.is_empty() {
-            Ok(())
-        } else {
-            Err(EnvError::InvalidState("stack has no episode parameters".into()))
-        }
     }
 }
