@@ -13,7 +13,7 @@ use crate::error::{check_finite, EnvError, Result};
 use crate::layout::Layout;
 use crate::math::rotation_from_rot6d;
 use crate::rng::EpisodeRng;
-use crate::robot::{load_urdf, parse_urdf, RobotModel};
+use crate::robot::{load_urdf, parse_urdf, IkReport, RobotModel};
 use crate::scene::{PhysicsConfig, Scene};
 use crate::tasks::{make_task, Evaluation, RewardKind, Task, TaskOptions};
 
@@ -266,6 +266,34 @@ impl Env {
             self.in_episode = false;
         }
         Ok(StepResult { reward, terminated: false, truncated, evaluation })
+    }
+
+    /// Move everything that moves (the task's objects, the hand and the fingers) rigidly by
+    /// `motion`, with their velocities, while the robot base and the table stay where they are;
+    /// the arm's joints are re-solved for the moved hand and the last target moves too.
+    /// This is how symmetry probes build the transformed state g.s from s. The returned report
+    /// says how well the arm reaches the moved hand (joint limits and reach break the symmetry).
+    pub fn transform_scene(&mut self, motion: &Isometry3<f64>) -> Result<IkReport> {
+        if !self.in_episode && self.steps == 0 {
+            return Err(EnvError::CallOrder("transform_scene() called before reset()".into()));
+        }
+        let m = motion.to_homogeneous();
+        if let Some(bad) = m.iter().find(|v| !v.is_finite()) {
+            return Err(EnvError::NonFinite { what: "motion".into(), index: 0, value: *bad });
+        }
+        let bodies: Vec<_> = self.task.objects().iter().map(|o| o.body).collect();
+        self.scene.transform_bodies(&bodies, motion);
+        let home = self.task.scene_spec().home_q;
+        let report = self.scene.transform_hand(motion, &[home.as_slice()]);
+        let world = &mut self.scene.world;
+        world.bodies.propagate_modified_body_positions_to_colliders(&mut world.colliders);
+        let t = &mut self.last_target;
+        let p = motion * nalgebra::Point3::new(t[0], t[1], t[2]);
+        t[..3].copy_from_slice(p.coords.as_slice());
+        if let Some(r) = rotation_from_rot6d(&t[3..9]) {
+            t[3..9].copy_from_slice(&crate::math::rot6d(&(motion.rotation * r)));
+        }
+        Ok(report)
     }
 
     /// Evaluate the current state without stepping.

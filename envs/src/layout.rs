@@ -82,6 +82,18 @@ impl Layout {
         self.fields.iter().find(|f| f.name == name)
     }
 
+    /// `times` copies of this layout one after another, field names prefixed `t{k}.`
+    /// (an action chunk of `times` actions).
+    pub fn repeat(&self, times: usize) -> Layout {
+        let mut out = Layout::new();
+        for k in 0..times {
+            for f in &self.fields {
+                out = out.with(&format!("t{k}.{}", f.name), f.kind, f.len);
+            }
+        }
+        out
+    }
+
     /// The 10-d absolute end-effector action every task takes.
     pub fn action() -> Self {
         Layout::new()

@@ -15,14 +15,14 @@
 
 use std::sync::Arc;
 
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use rapier3d::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{EnvError, Result};
 use crate::math::{clamp_norm, from_pose, from_vector, to_pose, to_vector};
 use crate::robot::kinematics::rotation_error;
-use crate::robot::{IkOptions, LinkShape, RobotModel, ShapeKind};
+use crate::robot::{IkOptions, IkReport, LinkShape, RobotModel, ShapeKind};
 
 /// Collision groups: the robot touches objects and the table, never itself.
 pub const GROUP_ROBOT: Group = Group::GROUP_1;
@@ -97,22 +97,36 @@ impl PhysicsConfig {
     }
 }
 
-/// Joint-space state of the arm, owned by the controller.
+/// State of the arm controller.
+///
+/// The controller is Cartesian, like an operational-space controller: each control step moves
+/// a commanded TCP pose towards the (reachable part of the) target at bounded linear and
+/// angular speed, and a servo makes the hand follow it. Joint limits enter through inverse
+/// kinematics: the target is replaced by the closest pose the arm reaches within its limits.
+/// Without joint limits every step of this controller commutes with rotations of the scene
+/// about a vertical axis (the symmetry the project studies).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ArmController {
-    /// Commanded joints at the end of the last control step.
-    pub q_cmd: Vec<f64>,
-    /// Joints that reproduce the hand's actual pose (the "measured" joint positions).
+    /// Commanded TCP pose at the end of the last control step.
+    pub tcp_cmd: Isometry3<f64>,
+    /// Joints that reproduce the hand's actual pose (the "measured" joint positions, used to
+    /// draw the arm and to warm-start inverse kinematics).
     pub q_meas: Vec<f64>,
-    /// Last IK solution for the commanded target (warm start of the next solve).
+    /// Joints that reach the last target as closely as the limits allow.
     pub q_des: Vec<f64>,
     /// Commanded finger travel (half the opening), rate limited.
     pub finger_cmd: f64,
 }
 
-/// How far the commanded joints may run ahead of the measured ones (rad): bounds the wind-up
+/// How far the commanded TCP may run ahead of the actual one (m, rad): bounds the wind-up
 /// when the hand is blocked, so it does not leap when released.
-const MAX_JOINT_LEAD: f64 = 0.15;
+const MAX_TCP_LEAD: f64 = 0.05;
+const MAX_TCP_LEAD_ANGLE: f64 = 0.25;
+
+/// Speed limits of the commanded TCP (m/s, rad/s); the Panda's Cartesian limits are 1.7 m/s
+/// and 2.5 rad/s.
+const MAX_TCP_SPEED: f64 = 1.0;
+const MAX_TCP_ANGULAR_SPEED: f64 = 2.5;
 
 /// Finger motor gains (force-based). Tuned with the experts: stiffer or more damped finger
 /// motors on 15 g fingers make grasps squeeze objects out.
@@ -314,7 +328,7 @@ impl Scene {
             hand_colliders,
             finger_colliders: [finger_colliders[0].clone(), finger_colliders[1].clone()],
         };
-        let arm = ArmController { q_cmd: q.clone(), q_meas: q.clone(), q_des: q, finger_cmd: finger_start };
+        let arm = ArmController { tcp_cmd: robot.tcp_pose(&base, &q), q_meas: q.clone(), q_des: q, finger_cmd: finger_start };
         Ok(Self {
             world,
             robot,
@@ -348,7 +362,59 @@ impl Scene {
             set(&mut self.world.bodies[self.bodies.fingers[k]], &pose);
             self.set_finger_motor(k, travel);
         }
-        self.arm = ArmController { q_cmd: q.clone(), q_meas: q.clone(), q_des: q, finger_cmd: travel };
+        let tcp_cmd = self.robot.tcp_pose(&self.base, &q);
+        self.arm = ArmController { tcp_cmd, q_meas: q.clone(), q_des: q, finger_cmd: travel };
+    }
+
+    /// Move `bodies` rigidly by `motion`: poses and velocities (linear and angular) turn with it.
+    pub fn transform_bodies(&mut self, bodies: &[RigidBodyHandle], motion: &Isometry3<f64>) {
+        for handle in bodies {
+            let body = &mut self.world.bodies[*handle];
+            let pose = motion * from_pose(body.position());
+            let v = motion.rotation * from_vector(body.linvel());
+            let w = motion.rotation * from_vector(body.angvel());
+            body.set_position(to_pose(&pose), true);
+            body.set_linvel(to_vector(&v), true);
+            body.set_angvel(to_vector(&w), true);
+        }
+    }
+
+    /// Move the hand and fingers rigidly by `motion` (with the commanded TCP pose) and re-solve
+    /// the arm's joints (measured and desired) for the moved poses; the base stays put. Each solve starts from
+    /// the joints it replaces, then from each warm start in `seeds`, and keeps the best fit.
+    /// Returns the worst fit: a moved hand the arm cannot reach (joint limits, reach) keeps its
+    /// pose, and the controller pulls it back towards a reachable one on the next step.
+    pub fn transform_hand(&mut self, motion: &Isometry3<f64>, seeds: &[&[f64]]) -> IkReport {
+        let robot_bodies = [self.bodies.hand, self.bodies.fingers[0], self.bodies.fingers[1]];
+        self.transform_bodies(&robot_bodies, motion);
+        let model = self.control_model.clone();
+        let opts = IkOptions { max_iterations: self.ik.max_iterations.max(200), ..self.ik };
+        let solve = |target: &Isometry3<f64>, start: &[f64]| {
+            let mut best: Option<(f64, Vec<f64>, IkReport)> = None;
+            for seed in std::iter::once(start).chain(seeds.iter().copied()) {
+                let mut q = seed.to_vec();
+                let report = model.solve_ik(&self.base, target, &mut q, &opts);
+                let score = report.position_error + 0.1 * report.rotation_error;
+                if best.as_ref().is_none_or(|b| score < b.0) {
+                    best = Some((score, q, report));
+                }
+            }
+            let (_, q, report) = best.expect("the joints themselves are a warm start");
+            (q, report)
+        };
+        let (q_meas, fit) = solve(&self.tcp_pose(), &self.arm.q_meas);
+        let (q_des, fit_des) = solve(&(motion * model.tcp_pose(&self.base, &self.arm.q_des)), &self.arm.q_des);
+        self.arm.tcp_cmd = motion * self.arm.tcp_cmd;
+        self.arm.q_meas = q_meas;
+        self.arm.q_des = q_des;
+        let mut worst = fit;
+        for other in [fit_des] {
+            worst.position_error = worst.position_error.max(other.position_error);
+            worst.rotation_error = worst.rotation_error.max(other.rotation_error);
+            worst.converged &= other.converged;
+            worst.iterations = worst.iterations.max(other.iterations);
+        }
+        worst
     }
 
     fn set_finger_motor(&mut self, k: usize, travel: f64) {
@@ -400,7 +466,6 @@ impl Scene {
     /// Advance one control period towards the absolute TCP target and finger travel.
     pub fn control_step(&mut self, target: &Isometry3<f64>, finger_travel: f64) {
         let model = self.control_model.clone();
-        let dof = model.dof();
         let period = self.config.control_period();
         let dt = self.config.timestep;
 
@@ -408,19 +473,17 @@ impl Scene {
         let tcp_now = self.tcp_pose();
         let mut q_meas = std::mem::take(&mut self.arm.q_meas);
         model.solve_ik(&self.base, &tcp_now, &mut q_meas, &self.ik);
+        // The reachable part of the target: the closest pose within the joint limits.
         let mut q_des = std::mem::take(&mut self.arm.q_des);
-        model.solve_ik(&self.base, target, &mut q_des, &self.ik);
+        let fit = model.solve_ik(&self.base, target, &mut q_des, &self.ik);
+        // A target reached within the IK tolerance is used as is, so the commanded path does
+        // not depend on the joint configuration the solver happened to start from.
+        let reachable = if fit.converged { *target } else { model.tcp_pose(&self.base, &q_des) };
 
-        let mut q_start = self.arm.q_cmd.clone();
-        for k in 0..dof {
-            q_start[k] = q_start[k].clamp(q_meas[k] - MAX_JOINT_LEAD, q_meas[k] + MAX_JOINT_LEAD);
-        }
-        let mut q_end = q_start.clone();
-        for k in 0..dof {
-            let max = model.joints[k].max_velocity * period;
-            q_end[k] += (q_des[k] - q_start[k]).clamp(-max, max);
-        }
-        model.clamp_to_limits(&mut q_end);
+        // This step's commanded path: from the last command (kept near the actual pose) towards
+        // the reachable target at bounded speed.
+        let start = approach(&tcp_now, &self.arm.tcp_cmd, MAX_TCP_LEAD, MAX_TCP_LEAD_ANGLE);
+        let end = approach(&start, &reachable, MAX_TCP_SPEED * period, MAX_TCP_ANGULAR_SPEED * period);
 
         let f = &self.robot.fingers[0];
         let travel = finger_travel.clamp(f.lower, f.upper);
@@ -430,15 +493,16 @@ impl Scene {
         let inertia = self.robot.hand_inertia.principal_inertia.max().max(1e-4);
         let max_dw = self.config.max_hand_torque * dt / inertia;
         let tau = self.config.servo_time_constant.max(dt);
-        let mut q_s = q_start.clone();
-        let mut prev_target = model.hand_pose(&self.base, &q_start);
+        let tcp_to_hand = self.robot.tcp_offset.inverse();
+        let mut prev_target = start * tcp_to_hand;
 
         for s in 1..=self.config.substeps {
             let a = s as f64 / self.config.substeps as f64;
-            for k in 0..dof {
-                q_s[k] = q_start[k] + (q_end[k] - q_start[k]) * a;
-            }
-            let hand_target = model.hand_pose(&self.base, &q_s);
+            let tcp_s = Isometry3::from_parts(
+                start.translation.vector.lerp(&end.translation.vector, a).into(),
+                start.rotation.slerp(&end.rotation, a),
+            );
+            let hand_target = tcp_s * tcp_to_hand;
             let ff_v = (hand_target.translation.vector - prev_target.translation.vector) / dt;
             let ff_w = rotation_error(&hand_target.rotation, &prev_target.rotation) / dt;
             prev_target = hand_target;
@@ -473,7 +537,7 @@ impl Scene {
             }
             self.world.step();
         }
-        self.arm.q_cmd = q_end;
+        self.arm.tcp_cmd = end;
         self.arm.q_meas = q_meas;
         self.arm.q_des = q_des;
     }
@@ -493,7 +557,7 @@ impl Scene {
     pub fn restore(&mut self, bytes: &[u8]) -> Result<()> {
         let state: SceneState = postcard::from_bytes(bytes)
             .map_err(|e| EnvError::InvalidState(format!("cannot decode the scene: {e}")))?;
-        if state.arm.q_cmd.len() != self.robot.dof()
+        if state.arm.q_meas.len() != self.robot.dof() || state.arm.q_des.len() != self.robot.dof()
             || state.world.bodies.len() != self.world.bodies.len()
             || state.world.colliders.len() != self.world.colliders.len()
         {
@@ -513,4 +577,14 @@ impl Scene {
         self.arm = arm;
         Ok(())
     }
+}
+
+/// Move pose `from` towards `to` by at most `max_step` metres and `max_angle` radians (a pose
+/// on the straight line and the geodesic between them). Commutes with rigid motions.
+fn approach(from: &Isometry3<f64>, to: &Isometry3<f64>, max_step: f64, max_angle: f64) -> Isometry3<f64> {
+    let dp = clamp_norm(to.translation.vector - from.translation.vector, max_step);
+    let turn = to.rotation * from.rotation.inverse();
+    let angle = turn.angle();
+    let turn = if angle > max_angle { UnitQuaternion::from_scaled_axis(turn.scaled_axis() * (max_angle / angle)) } else { turn };
+    Isometry3::from_parts((from.translation.vector + dp).into(), turn * from.rotation)
 }

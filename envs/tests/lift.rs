@@ -185,7 +185,7 @@ fn joint_limits_are_never_violated() {
         let a = random_action(&env, &mut rng);
         env.step(&a).unwrap();
         let scene = env.scene();
-        for (q, j) in scene.arm.q_cmd.iter().chain(&scene.arm.q_meas).zip(scene.robot.joints.iter().cycle()) {
+        for (q, j) in scene.arm.q_des.iter().chain(&scene.arm.q_meas).zip(scene.robot.joints.iter().cycle()) {
             assert!(*q >= j.lower - 1e-9 && *q <= j.upper + 1e-9, "{} = {q} outside [{}, {}]", j.name, j.lower, j.upper);
         }
     }
@@ -205,7 +205,7 @@ fn joint_limits_can_be_turned_off() {
         let turn = nalgebra::UnitQuaternion::from_axis_angle(&nalgebra::Vector3::z_axis(), 0.1 * k as f64);
         a[3..9].copy_from_slice(&equigym_envs::math::rot6d(&(turn * tcp.rotation)));
         env.step(&a).unwrap();
-        let q7 = env.scene().arm.q_cmd[6];
+        let q7 = env.scene().arm.q_des[6];
         exceeded |= q7.abs() > 2.9;
     }
     assert!(exceeded, "without limits the wrist should pass 2.9 rad");

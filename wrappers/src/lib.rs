@@ -1,2 +1,33 @@
-//! Symmetry wrappers, EDP runtime and latent-action MDP (filled by later work).
+//! # equigym-wrappers
+//!
+//! The symmetry layer on top of `equigym-envs`:
+//!
+//! - [`group`]: SO(2) about the table centre and its cyclic subgroups C_N.
+//! - [`representation`]: rho0 / rho1 representations on flat vectors, built from a task's
+//!   field [`Layout`](equigym_envs::Layout).
+//! - [`symmetry`]: a task's group action on observations, actions, action chunks, latent noise
+//!   and simulator states.
+//! - [`breaking`]: measuring how much a task breaks the symmetry (transition-invariance error,
+//!   rotated demonstrations).
+//!
+//! ```no_run
+//! use equigym_wrappers::{Group, TaskSymmetry};
+//! use equigym_envs::{Env, EnvConfig};
+//! let mut env = Env::new(EnvConfig::new("lift")).unwrap();
+//! let sym = TaskSymmetry::for_env(&env, Group::cyclic(8).unwrap(), 4).unwrap();
+//! let g = sym.group.element(1).unwrap(); // 45 degrees
+//! let mut obs = env.reset(0).unwrap().to_vec();
+//! sym.act_observation(&g, &mut obs).unwrap();
+//! ```
+
+pub mod breaking;
+pub mod error;
+pub mod group;
+pub mod representation;
+pub mod symmetry;
+
 pub use equigym_envs as envs;
+pub use error::{Error, Result};
+pub use group::{Group, PlanarRotation};
+pub use representation::{Block, Representation};
+pub use symmetry::{transform_state, TaskSymmetry, DEFAULT_CHUNK_LEN, ROTATION_CENTRE};
