@@ -5,6 +5,8 @@
 //! `ValueError` subclasses; calls out of order raise `ResetNeeded` (a `RuntimeError`); a missing
 //! file raises `FileNotFoundError`.
 
+mod symmetry;
+
 use std::path::PathBuf;
 
 use equigym_envs::experts::{make_expert, Expert as RustExpert, ExpertOptions};
@@ -257,6 +259,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add_class::<Env>()?;
     m.add_class::<Expert>()?;
+    m.add_class::<symmetry::TaskSymmetry>()?;
+    m.add_function(wrap_pyfunction!(symmetry::measure_symmetry_breaking, m)?)?;
     m.add("EquigymError", py.get_type::<EquigymError>())?;
     m.add("UrdfError", py.get_type::<UrdfError>())?;
     m.add("InvalidStateError", py.get_type::<InvalidStateError>())?;

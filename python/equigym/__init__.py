@@ -19,6 +19,8 @@ from equigym._core import Env as CoreEnv
 from equigym._core import Expert
 from equigym.envs import ENV_IDS, EquiEnv, register_envs
 from equigym.rendering import save_gif
+from equigym.symmetry import Symmetry, measure_breaking
+from equigym.wrappers import SymmetryWrapper
 
 register_envs()
 
@@ -35,4 +37,7 @@ __all__ = [
     "__version__",
     "register_envs",
     "save_gif",
+    "Symmetry",
+    "SymmetryWrapper",
+    "measure_breaking",
 ]
