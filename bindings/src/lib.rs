@@ -5,6 +5,7 @@
 //! `ValueError` subclasses; calls out of order raise `ResetNeeded` (a `RuntimeError`); a missing
 //! file raises `FileNotFoundError`.
 
+mod latent;
 mod symmetry;
 
 use std::path::PathBuf;
@@ -22,6 +23,7 @@ create_exception!(_core, EquigymError, PyValueError, "Invalid input to an equigy
 create_exception!(_core, UrdfError, PyValueError, "The robot description (URDF) cannot be used.");
 create_exception!(_core, InvalidStateError, PyValueError, "A saved state cannot be restored.");
 create_exception!(_core, ResetNeeded, PyRuntimeError, "The environment must be reset before this call.");
+create_exception!(_core, PolicyError, PyValueError, "A diffusion-policy file is corrupt, truncated or does not fit the task.");
 
 fn to_py(e: EnvError) -> PyErr {
     let msg = e.to_string();
@@ -260,6 +262,9 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Env>()?;
     m.add_class::<Expert>()?;
     m.add_class::<symmetry::TaskSymmetry>()?;
+    m.add_class::<latent::DiffusionPolicy>()?;
+    m.add_class::<latent::LatentEnv>()?;
+    m.add("PolicyError", py.get_type::<PolicyError>())?;
     m.add_function(wrap_pyfunction!(symmetry::measure_symmetry_breaking, m)?)?;
     m.add("EquigymError", py.get_type::<EquigymError>())?;
     m.add("UrdfError", py.get_type::<UrdfError>())?;

@@ -5,7 +5,7 @@
 use equigym_envs::TaskOptions;
 use equigym_wrappers::breaking::{measure, BreakingConfig};
 use equigym_wrappers::{
-    transform_state, Error as SymmetryError, Group, PlanarRotation, Representation, TaskSymmetry as RustSymmetry,
+    transform_state, Block, Error as SymmetryError, Group, PlanarRotation, Representation, TaskSymmetry as RustSymmetry,
 };
 use numpy::ndarray::{ArrayD, IxDyn};
 use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyReadonlyArray1, PyReadonlyArrayDyn, PyUntypedArrayMethods};
@@ -14,10 +14,12 @@ use pyo3::types::{PyDict, PyList};
 
 use crate::{layout_list, to_py, Env, EquigymError};
 
-fn sym_err(e: SymmetryError) -> PyErr {
+pub(crate) fn sym_err(e: SymmetryError) -> PyErr {
     match e {
         SymmetryError::Env(e) => to_py(e),
         SymmetryError::InvalidGroup(_) => EquigymError::new_err(e.to_string()),
+        SymmetryError::Policy { .. } => crate::PolicyError::new_err(e.to_string()),
+        SymmetryError::PolicyNotFound(_) => pyo3::exceptions::PyFileNotFoundError::new_err(e.to_string()),
     }
 }
 
@@ -123,6 +125,20 @@ impl TaskSymmetry {
             "chunk" | "latent" => layout_list(py, &self.inner.chunk_layout),
             _ => self.representation(space).map(|_| unreachable!()),
         }
+    }
+    /// The irreducible blocks of a space, in order: (frequency, indices) with frequency 0 for
+    /// rho0 (one index) and 1 for rho1 (an (x, y) index pair). Equivariant networks permute
+    /// inputs into this order so that each rho1 pair is contiguous.
+    fn blocks(&self, space: &str) -> PyResult<Vec<(u32, Vec<usize>)>> {
+        Ok(self
+            .representation(space)?
+            .blocks()
+            .iter()
+            .map(|b| match *b {
+                Block::Trivial { index } => (0, vec![index]),
+                Block::Rotating { x, y, frequency } => (frequency, vec![x, y]),
+            })
+            .collect())
     }
     /// Angle (rad) of element k of C_N.
     fn element_angle(&self, k: usize) -> PyResult<f64> {

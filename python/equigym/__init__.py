@@ -16,16 +16,22 @@ from equigym._core import (
     __version__,
 )
 from equigym._core import Env as CoreEnv
-from equigym._core import Expert
+from equigym._core import DiffusionPolicy, Expert, PolicyError
 from equigym.envs import ENV_IDS, EquiEnv, register_envs
+from equigym.latent import LATENT_ENV_IDS, EquiLatentEnv, register_latent_envs
 from equigym.rendering import save_gif
 from equigym.symmetry import Symmetry, measure_breaking
 from equigym.wrappers import SymmetryWrapper
 
 register_envs()
+register_latent_envs()
 
 __all__ = [
     "CoreEnv",
+    "DiffusionPolicy",
+    "EquiLatentEnv",
+    "LATENT_ENV_IDS",
+    "PolicyError",
     "ENV_IDS",
     "EquiEnv",
     "EquigymError",

@@ -94,6 +94,10 @@ class Symmetry:
         """The fields of ``space`` (``observation``, ``action``, ``chunk``, ``latent``)."""
         return [Field(**f) for f in self._core.layout(space)]
 
+    def blocks(self, space: str) -> list[tuple[int, list[int]]]:
+        """Irreducible blocks of ``space`` in order: ``(0, [i])`` for rho0, ``(1, [x, y])`` for rho1."""
+        return self._core.blocks(space)
+
     def matrix(self, space: str, g: int | None = None, *, angle: float | None = None) -> npt.NDArray[np.float64]:
         """The (orthogonal) representation matrix of one element on ``space``."""
         return self._core.matrix(space, element=None if g is None else int(g), angle=angle)

@@ -11,6 +11,12 @@ pub enum Error {
     /// A group or group element that does not exist.
     #[error("invalid group: {0}")]
     InvalidGroup(String),
+    /// A policy file that is missing, corrupt, truncated or does not fit the task.
+    #[error("policy {path}: {reason}")]
+    Policy { path: String, reason: String },
+    /// A policy file that does not exist.
+    #[error("policy {0}: no such file")]
+    PolicyNotFound(String),
 }
 
 pub type Result<T> = std::result::Result<T, Error>;

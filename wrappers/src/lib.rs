@@ -9,6 +9,8 @@
 //!   and simulator states.
 //! - [`breaking`]: measuring how much a task breaks the symmetry (transition-invariance error,
 //!   rotated demonstrations).
+//! - [`edp`]: the exported equivariant diffusion policy (safetensors) and batched DDIM.
+//! - [`latent`]: the latent-action MDP (DSRL): latent noise -> DDIM -> action chunk -> steps.
 //!
 //! ```no_run
 //! use equigym_wrappers::{Group, TaskSymmetry};
@@ -21,13 +23,17 @@
 //! ```
 
 pub mod breaking;
+pub mod edp;
 pub mod error;
 pub mod group;
+pub mod latent;
 pub mod representation;
 pub mod symmetry;
 
 pub use equigym_envs as envs;
 pub use error::{Error, Result};
+pub use edp::DiffusionPolicy;
 pub use group::{Group, PlanarRotation};
+pub use latent::{LatentEnv, LatentStep, DEFAULT_LATENT_BOUND};
 pub use representation::{Block, Representation};
 pub use symmetry::{transform_state, TaskSymmetry, DEFAULT_CHUNK_LEN, ROTATION_CENTRE};

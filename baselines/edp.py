@@ -1,0 +1,397 @@
+"""Equivariant Diffusion Policy (EDP): a state-based C_N-equivariant noise predictor, trained
+with DDPM on scripted demonstrations and exported for the Rust runtime.
+
+    python -m baselines.edp train --demos data/lift_3.hdf5 --out assets/edp/lift.safetensors
+    python -m baselines.edp train --demos ... --plain          # non-equivariant MLP, similar size
+    python -m baselines.edp eval --policy assets/edp/lift.safetensors --episodes 100
+
+Model: input = [normalised observation fields, noisy normalised action chunk, timestep embedding]
+in their representations (rho0 / rho1 blocks, the embedding trivial), escnn ``Linear`` layers on
+``no_base_space(cyclic_group(N))`` with regular-representation hidden fields and ReLU, output =
+the predicted noise in the chunk's representation. DDPM with 100 steps (squared-cosine
+schedule), epsilon prediction; sampling is deterministic DDIM (5 steps by default) without
+clipping (elementwise clipping would break equivariance). Normalisation commutes with the group:
+each rho1 pair is divided by one shared scale with no offset; rho0 values are min-max scaled.
+
+Export: ``module.export()`` gives plain linear layers; the permutation into escnn's block order
+is folded into the first and last weights, so the file holds a plain MLP in the task's natural
+field order (safetensors tensors ``layer{i}.weight/bias``, ``alphas_cumprod``, ``time_embedding``,
+``obs_offset/scale``, ``action_offset/scale``; metadata: task, layouts, chunk length, steps).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import csv
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+try:
+    import torch
+    import torch.nn as tnn
+except ImportError as exc:  # pragma: no cover
+    raise ImportError("baselines.edp needs torch: pip install 'equigym[train]'") from exc
+
+from equigym.demos import load as load_demos
+from equigym.symmetry import Symmetry
+
+FORMAT = "equigym-edp-1"
+
+
+@dataclass
+class EDPConfig:
+    task: str = "lift"
+    chunk_len: int = 4
+    group_order: int = 8
+    equivariant: bool = True
+    #: Hidden width: regular fields per layer (x N dims) for the EDP; plain width is matched.
+    hidden_fields: int = 32
+    hidden_layers: int = 3
+    time_dim: int = 16
+    num_train_timesteps: int = 100
+    ddim_steps: int = 5
+    batch_size: int = 256
+    steps: int = 4000
+    lr: float = 1e-3
+    weight_decay: float = 1e-6
+    ema_decay: float = 0.995
+    seed: int = 0
+    variant: str | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+# -- schedule and embedding ---------------------------------------------------------------
+def cosine_alphas_cumprod(T: int, s: float = 0.008) -> np.ndarray:
+    """The squared-cosine schedule (betas capped at 0.999), as alphas_cumprod."""
+
+    def abar(t: float) -> float:
+        return math.cos((t / T + s) / (1 + s) * math.pi / 2) ** 2
+
+    betas = np.array([min(1 - abar(i + 1) / abar(i), 0.999) for i in range(T)])
+    return np.cumprod(1.0 - betas)
+
+
+def time_embedding_table(T: int, dim: int) -> np.ndarray:
+    """Sinusoidal embedding of t = 0..T-1 (rows); stored in the export so Rust uses the same."""
+    half = dim // 2
+    freqs = np.exp(-math.log(10000.0) * np.arange(half) / max(half - 1, 1))
+    args = np.arange(T)[:, None] * freqs[None, :]
+    return np.concatenate([np.sin(args), np.cos(args)], axis=1)
+
+
+def ddim_timesteps(T: int, steps: int) -> list[int]:
+    ratio = T // steps
+    return [i * ratio for i in range(steps)][::-1]
+
+
+# -- normalisation that commutes with the group --------------------------------------------
+def fit_normalizer(x: np.ndarray, blocks: list[tuple[int, list[int]]]) -> tuple[np.ndarray, np.ndarray]:
+    """(offset, scale) per dimension: rho1 pairs share one scale (max norm) and no offset;
+    rho0 values map [min, max] to [-1, 1]."""
+    offset = np.zeros(x.shape[1])
+    scale = np.ones(x.shape[1])
+    for freq, idx in blocks:
+        if freq == 0:
+            (i,) = idx
+            lo, hi = x[:, i].min(), x[:, i].max()
+            offset[i] = 0.5 * (lo + hi)
+            scale[i] = max(0.5 * (hi - lo), 1e-3)
+        else:
+            s = np.linalg.norm(x[:, idx], axis=1).max()
+            scale[idx] = max(s, 1e-3)
+    return offset, scale
+
+
+# -- networks ------------------------------------------------------------------------------
+class EquivariantNoiseNet(tnn.Module):
+    """escnn MLP: [obs, x_t, time embedding] -> epsilon, equivariant to C_N."""
+
+    def __init__(self, obs_blocks, chunk_blocks, time_dim: int, hidden_fields: int, hidden_layers: int, order: int):
+        super().__init__()
+        from escnn import gspaces, group
+        from escnn import nn as enn
+
+        gs = gspaces.no_base_space(group.cyclic_group(order))
+        rep = {0: gs.trivial_repr, 1: gs.irrep(1)}
+        obs_dim = sum(len(i) for _, i in obs_blocks)
+        in_reps = [rep[f] for f, _ in obs_blocks] + [rep[f] for f, _ in chunk_blocks] + [gs.trivial_repr] * time_dim
+        out_reps = [rep[f] for f, _ in chunk_blocks]
+        # Natural order -> block order (each rho1 pair contiguous).
+        perm_in = [i for _, idx in obs_blocks for i in idx] + [obs_dim + i for _, idx in chunk_blocks for i in idx]
+        perm_in += list(range(len(perm_in), len(perm_in) + time_dim))
+        self.register_buffer("perm_in", torch.tensor(perm_in))
+        self.perm_out = [i for _, idx in chunk_blocks for i in idx]
+        self.register_buffer("inv_out", torch.tensor(np.argsort(self.perm_out)))
+        self.in_type = enn.FieldType(gs, in_reps)
+        hidden = enn.FieldType(gs, hidden_fields * [gs.regular_repr])
+        layers: list[Any] = [enn.Linear(self.in_type, hidden), enn.ReLU(hidden)]
+        for _ in range(hidden_layers - 1):
+            layers += [enn.Linear(hidden, hidden), enn.ReLU(hidden)]
+        layers.append(enn.Linear(hidden, enn.FieldType(gs, out_reps)))
+        self.net = enn.SequentialModule(*layers)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = self.net(self.in_type(x[:, self.perm_in])).tensor
+        return y[:, self.inv_out]
+
+    def export_linear(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Plain (weight, bias) per layer in natural order, from escnn's export."""
+        was_training = self.training
+        self.eval()
+        seq = self.net.export()
+        self.train(was_training)
+        lin = [m for m in seq if isinstance(m, tnn.Linear)]
+        out = [(m.weight.detach().double().numpy().copy(), m.bias.detach().double().numpy().copy()) for m in lin]
+        w0, b0 = out[0]
+        w0n = np.zeros_like(w0)
+        w0n[:, self.perm_in.numpy()] = w0
+        out[0] = (w0n, b0)
+        wl, bl = out[-1]
+        wln, bln = np.zeros_like(wl), np.zeros_like(bl)
+        wln[self.perm_out, :] = wl
+        bln[self.perm_out] = bl
+        out[-1] = (wln, bln)
+        return out
+
+
+class PlainNoiseNet(tnn.Module):
+    """A plain MLP with the same inputs and outputs (the non-equivariant comparison)."""
+
+    def __init__(self, in_dim: int, out_dim: int, width: int, hidden_layers: int):
+        super().__init__()
+        layers: list[tnn.Module] = [tnn.Linear(in_dim, width), tnn.ReLU()]
+        for _ in range(hidden_layers - 1):
+            layers += [tnn.Linear(width, width), tnn.ReLU()]
+        layers.append(tnn.Linear(width, out_dim))
+        self.net = tnn.Sequential(*layers)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x)
+
+    def export_linear(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        return [(m.weight.detach().double().numpy().copy(), m.bias.detach().double().numpy().copy()) for m in self.net if isinstance(m, tnn.Linear)]
+
+
+def count_params(m: tnn.Module) -> int:
+    return sum(p.numel() for p in m.parameters() if p.requires_grad)
+
+
+def build_net(cfg: EDPConfig, sym: Symmetry) -> tnn.Module:
+    obs_blocks, chunk_blocks = sym.blocks("observation"), sym.blocks("chunk")
+    in_dim = sym.dim("observation") + sym.dim("chunk") + cfg.time_dim
+    equi = EquivariantNoiseNet(obs_blocks, chunk_blocks, cfg.time_dim, cfg.hidden_fields, cfg.hidden_layers, cfg.group_order)
+    if cfg.equivariant:
+        return equi
+    # Match the parameter count: solve for the plain width.
+    target = count_params(equi)
+    L, i, o = cfg.hidden_layers, in_dim, sym.dim("chunk")
+    a, b, c = L - 1, i + o + L, o - target
+    width = int((-b + math.sqrt(b * b - 4 * a * c)) / (2 * a)) if a > 0 else max(8, (target - o) // (i + o + 1))
+    return PlainNoiseNet(in_dim, o, max(width, 8), L)
+
+
+# -- data ----------------------------------------------------------------------------------
+def chunk_dataset(demos: list[dict[str, Any]], chunk_len: int) -> tuple[np.ndarray, np.ndarray]:
+    """(obs_t, actions[t : t + chunk_len]) pairs; chunks past the end repeat the last action."""
+    obs, chunks = [], []
+    for d in demos:
+        a = d["actions"]
+        T = len(a)
+        for t in range(T):
+            idx = np.minimum(np.arange(t, t + chunk_len), T - 1)
+            obs.append(d["obs"][t])
+            chunks.append(a[idx].reshape(-1))
+    return np.asarray(obs, dtype=np.float64), np.asarray(chunks, dtype=np.float64)
+
+
+# -- training ------------------------------------------------------------------------------
+def train(cfg: EDPConfig, demo_path: str | Path, out: str | Path, progress: bool = True) -> dict[str, Any]:
+    torch.manual_seed(cfg.seed)
+    np.random.seed(cfg.seed)
+    data = load_demos(demo_path)
+    if data["task"] != cfg.task:
+        cfg.task = data["task"]
+    cfg.variant = data["env_args"].get("env_kwargs", {}).get("variant")
+    sym = Symmetry(cfg.task, group=f"C{cfg.group_order}", chunk_len=cfg.chunk_len)
+    obs, chunks = chunk_dataset(data["demos"], cfg.chunk_len)
+    obs_off, obs_scale = fit_normalizer(obs, sym.blocks("observation"))
+    act_off, act_scale = fit_normalizer(chunks.reshape(-1, 10), sym.blocks("action"))
+    act_off, act_scale = np.tile(act_off, cfg.chunk_len), np.tile(act_scale, cfg.chunk_len)
+    x_obs = torch.tensor((obs - obs_off) / obs_scale, dtype=torch.float32)
+    x_act = torch.tensor((chunks - act_off) / act_scale, dtype=torch.float32)
+    abar = torch.tensor(cosine_alphas_cumprod(cfg.num_train_timesteps), dtype=torch.float32)
+    temb = torch.tensor(time_embedding_table(cfg.num_train_timesteps, cfg.time_dim), dtype=torch.float32)
+
+    net = build_net(cfg, sym)
+    ema = copy.deepcopy(net)
+    for p in ema.parameters():
+        p.requires_grad_(False)
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.steps)
+    n = len(x_obs)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    log_path = out.with_suffix(".loss.csv")
+    losses = []
+    try:
+        from tqdm import trange
+
+        steps = trange(cfg.steps, desc=f"EDP {cfg.task}", disable=not progress)
+    except ImportError:  # pragma: no cover
+        steps = range(cfg.steps)
+    t0 = time.time()
+    for step in steps:
+        idx = torch.randint(0, n, (min(cfg.batch_size, max(n, 1) * 4),))
+        o, a = x_obs[idx], x_act[idx]
+        t = torch.randint(0, cfg.num_train_timesteps, (len(idx),))
+        eps = torch.randn_like(a)
+        ab = abar[t][:, None]
+        xt = ab.sqrt() * a + (1 - ab).sqrt() * eps
+        pred = net(torch.cat([o, xt, temb[t]], dim=1))
+        loss = torch.mean((pred - eps) ** 2)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        with torch.no_grad():
+            for pe, p in zip(ema.parameters(), net.parameters()):
+                pe.mul_(cfg.ema_decay).add_(p.detach(), alpha=1 - cfg.ema_decay)
+        losses.append(float(loss))
+        if hasattr(steps, "set_postfix") and step % 50 == 0:
+            steps.set_postfix(loss=f"{np.mean(losses[-50:]):.4f}")
+        if (step + 1) % 1000 == 0 or step + 1 == cfg.steps:
+            torch.save({"config": asdict(cfg), "net": net.state_dict(), "ema": ema.state_dict(), "step": step + 1}, out.with_suffix(".ckpt"))
+    seconds = time.time() - t0
+    with open(log_path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["step", "loss"])
+        w.writerows(enumerate(losses))
+    _plot_loss(losses, out.with_suffix(".loss.png"))
+    layers = ema.export_linear()
+    export(out, cfg, sym, layers, obs_off, obs_scale, act_off, act_scale, params=count_params(net), demos=len(data["demos"]))
+    return {"path": str(out), "params": count_params(net), "samples": n, "seconds": seconds, "final_loss": float(np.mean(losses[-100:]))}
+
+
+def _plot_loss(losses: list[float], path: Path) -> None:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:  # pragma: no cover
+        return
+    fig, ax = plt.subplots(figsize=(5, 3))
+    k = max(1, len(losses) // 200)
+    smooth = np.convolve(losses, np.ones(k) / k, mode="valid")
+    ax.plot(smooth)
+    ax.set_yscale("log")
+    ax.set_xlabel("step")
+    ax.set_ylabel("noise MSE")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def export(out, cfg: EDPConfig, sym: Symmetry, layers, obs_off, obs_scale, act_off, act_scale, **meta: Any) -> None:
+    from safetensors.numpy import save_file
+
+    tensors = {
+        "alphas_cumprod": cosine_alphas_cumprod(cfg.num_train_timesteps).astype(np.float64),
+        "time_embedding": time_embedding_table(cfg.num_train_timesteps, cfg.time_dim).astype(np.float64),
+        "obs_offset": np.asarray(obs_off, dtype=np.float64),
+        "obs_scale": np.asarray(obs_scale, dtype=np.float64),
+        "action_offset": np.asarray(act_off, dtype=np.float64),
+        "action_scale": np.asarray(act_scale, dtype=np.float64),
+    }
+    for i, (w, b) in enumerate(layers):
+        tensors[f"layer{i}.weight"] = w.astype(np.float32)
+        tensors[f"layer{i}.bias"] = b.astype(np.float32)
+    metadata = {
+        "format": FORMAT,
+        "task": cfg.task,
+        "variant": cfg.variant or "",
+        "chunk_len": str(cfg.chunk_len),
+        "num_layers": str(len(layers)),
+        "activation": "relu",
+        "num_train_timesteps": str(cfg.num_train_timesteps),
+        "ddim_steps": str(cfg.ddim_steps),
+        "group": f"C{cfg.group_order}" if cfg.equivariant else "none",
+        "observation_layout": json.dumps(sym.layout("observation"), default=lambda f: f.__dict__),
+        "config": json.dumps(asdict(cfg)),
+        **{k: str(v) for k, v in meta.items()},
+    }
+    save_file(tensors, str(out), metadata=metadata)
+
+
+# -- reference sampler (float64, the same maths as the Rust runtime) ---------------------------
+class ExportedPolicy:
+    """The exported file run in numpy/torch: for parity tests and speed comparisons."""
+
+    def __init__(self, path: str | Path, dtype: torch.dtype = torch.float64):
+        from safetensors.numpy import load_file
+        from safetensors import safe_open
+
+        t = load_file(str(path))
+        with safe_open(str(path), "np") as f:
+            self.meta = f.metadata()
+        n = int(self.meta["num_layers"])
+        self.layers = [(torch.tensor(t[f"layer{i}.weight"], dtype=dtype), torch.tensor(t[f"layer{i}.bias"], dtype=dtype)) for i in range(n)]
+        self.abar = t["alphas_cumprod"]
+        self.temb = torch.tensor(t["time_embedding"], dtype=dtype)
+        self.obs_off, self.obs_scale = (torch.tensor(t[k], dtype=dtype) for k in ("obs_offset", "obs_scale"))
+        self.act_off, self.act_scale = (torch.tensor(t[k], dtype=dtype) for k in ("action_offset", "action_scale"))
+        self.dtype = dtype
+        self.T = int(self.meta["num_train_timesteps"])
+
+    def mlp(self, x: torch.Tensor) -> torch.Tensor:
+        for i, (w, b) in enumerate(self.layers):
+            x = x @ w.T + b
+            if i + 1 < len(self.layers):
+                x = torch.relu(x)
+        return x
+
+    @torch.no_grad()
+    def sample(self, obs: np.ndarray, w: np.ndarray, steps: int = 5) -> np.ndarray:
+        o = (torch.as_tensor(obs, dtype=self.dtype) - self.obs_off) / self.obs_scale
+        x = torch.as_tensor(w, dtype=self.dtype).clone()
+        ts = ddim_timesteps(self.T, steps)
+        for k, t in enumerate(ts):
+            prev = ts[k + 1] if k + 1 < len(ts) else -1
+            ab, ab_prev = float(self.abar[t]), (float(self.abar[prev]) if prev >= 0 else 1.0)
+            eps = self.mlp(torch.cat([o, x, self.temb[t].expand(len(x), -1)], dim=1))
+            x0 = (x - math.sqrt(1 - ab) * eps) / math.sqrt(ab)
+            x = math.sqrt(ab_prev) * x0 + math.sqrt(1 - ab_prev) * eps
+        return (x * self.act_scale + self.act_off).numpy()
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    t = sub.add_parser("train", help="train an EDP on a demo file and export it")
+    t.add_argument("--demos", required=True)
+    t.add_argument("--out", required=True)
+    t.add_argument("--plain", action="store_true", help="non-equivariant MLP of similar size")
+    t.add_argument("--steps", type=int, default=EDPConfig.steps)
+    t.add_argument("--hidden-fields", type=int, default=EDPConfig.hidden_fields)
+    t.add_argument("--hidden-layers", type=int, default=EDPConfig.hidden_layers)
+    t.add_argument("--batch-size", type=int, default=EDPConfig.batch_size)
+    t.add_argument("--lr", type=float, default=EDPConfig.lr)
+    t.add_argument("--seed", type=int, default=0)
+    a = p.parse_args(argv)
+    if a.cmd == "train":
+        cfg = EDPConfig(
+            equivariant=not a.plain, steps=a.steps, hidden_fields=a.hidden_fields, hidden_layers=a.hidden_layers,
+            batch_size=a.batch_size, lr=a.lr, seed=a.seed,
+        )
+        print(json.dumps(train(cfg, a.demos, a.out)))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,190 @@
+//! Bindings of the diffusion-policy runtime and the latent-action environment.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use equigym_wrappers::latent::{LatentEnv as RustLatentEnv, DEFAULT_LATENT_BOUND};
+use equigym_wrappers::DiffusionPolicy as RustPolicy;
+use numpy::ndarray::Array3;
+use numpy::{IntoPyArray, PyArray1, PyArray3, PyReadonlyArray1, PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict};
+
+use crate::symmetry::sym_err;
+use crate::{info_dict, to_py, Env, EquigymError};
+
+/// An exported equivariant diffusion policy, run in Rust (batched deterministic DDIM).
+#[pyclass(module = "equigym._core", name = "DiffusionPolicy")]
+pub struct DiffusionPolicy {
+    inner: Arc<RustPolicy>,
+}
+
+#[pymethods]
+impl DiffusionPolicy {
+    #[new]
+    fn new(path: PathBuf) -> PyResult<Self> {
+        Ok(Self { inner: Arc::new(RustPolicy::load(&path).map_err(sym_err)?) })
+    }
+    #[getter]
+    fn task(&self) -> &str {
+        &self.inner.task
+    }
+    #[getter]
+    fn chunk_len(&self) -> usize {
+        self.inner.chunk_len
+    }
+    #[getter]
+    fn obs_dim(&self) -> usize {
+        self.inner.obs_dim()
+    }
+    #[getter]
+    fn action_dim(&self) -> usize {
+        self.inner.action_dim()
+    }
+    #[getter]
+    fn group(&self) -> &str {
+        &self.inner.group
+    }
+    #[getter]
+    fn default_ddim_steps(&self) -> usize {
+        self.inner.default_ddim_steps
+    }
+    #[getter]
+    fn metadata(&self) -> std::collections::HashMap<String, String> {
+        self.inner.metadata.clone()
+    }
+    /// Denoise: `obs` (B, obs_dim) and `latent` (B, action_dim) -> chunks (B, chunk_len, 10).
+    #[pyo3(signature = (obs, latent, steps=None))]
+    fn sample<'py>(
+        &self,
+        py: Python<'py>,
+        obs: PyReadonlyArrayDyn<'py, f64>,
+        latent: PyReadonlyArrayDyn<'py, f64>,
+        steps: Option<usize>,
+    ) -> PyResult<Bound<'py, PyArray3<f64>>> {
+        let (od, ad) = (self.inner.obs_dim(), self.inner.action_dim());
+        let (os, ls) = (obs.shape().to_vec(), latent.shape().to_vec());
+        if os.len() != 2 || ls.len() != 2 || os[1] != od || ls[1] != ad || os[0] != ls[0] {
+            return Err(EquigymError::new_err(format!(
+                "expected obs (B, {od}) and latent (B, {ad}) with the same B, got {os:?} and {ls:?}"
+            )));
+        }
+        let o: Vec<f64> = obs.as_array().iter().copied().collect();
+        let w: Vec<f64> = latent.as_array().iter().copied().collect();
+        let steps = steps.unwrap_or(self.inner.default_ddim_steps);
+        let mut out = vec![0.0; w.len()];
+        let policy = self.inner.clone();
+        py.detach(|| policy.sample(&o, &w, steps, &mut out)).map_err(sym_err)?;
+        let chunk = self.inner.chunk_len;
+        let arr = Array3::from_shape_vec((ls[0], chunk, ad / chunk), out).map_err(|e| EquigymError::new_err(e.to_string()))?;
+        Ok(arr.into_pyarray(py))
+    }
+}
+
+/// A task whose action is the diffusion policy's latent noise (see `equigym.latent`).
+#[pyclass(module = "equigym._core", name = "LatentEnv")]
+pub struct LatentEnv {
+    inner: RustLatentEnv,
+}
+
+#[pymethods]
+impl LatentEnv {
+    #[new]
+    #[pyo3(signature = (task, policy, *, bound=DEFAULT_LATENT_BOUND, ddim_steps=None, urdf=None, joint_limits=true, init_joint_noise=0.02, horizon=None, physics=None, ranges=None, variant=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        task: &str,
+        policy: &Bound<'_, PyAny>,
+        bound: f64,
+        ddim_steps: Option<usize>,
+        urdf: Option<PathBuf>,
+        joint_limits: bool,
+        init_joint_noise: f64,
+        horizon: Option<usize>,
+        physics: Option<&Bound<'_, PyDict>>,
+        ranges: Option<&Bound<'_, PyDict>>,
+        variant: Option<String>,
+    ) -> PyResult<Self> {
+        let policy = match policy.cast::<DiffusionPolicy>() {
+            Ok(p) => p.borrow().inner.clone(),
+            Err(_) => Arc::new(RustPolicy::load(policy.extract::<PathBuf>()?).map_err(sym_err)?),
+        };
+        let env = Env::new(task, "sparse", urdf, joint_limits, init_joint_noise, horizon, physics, ranges, variant)?.inner;
+        let steps = ddim_steps.unwrap_or(policy.default_ddim_steps);
+        Ok(Self { inner: RustLatentEnv::new(env, policy, bound, steps).map_err(sym_err)? })
+    }
+
+    fn reset<'py>(&mut self, py: Python<'py>, seed: u64) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        Ok(self.inner.reset(seed).map_err(sym_err)?.into_pyarray(py))
+    }
+
+    /// One latent step: (obs, reward, terminated, truncated, info); info has `success`
+    /// (any primitive step), `executed` (primitive steps) and the task's terms.
+    #[allow(clippy::type_complexity)]
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        latent: PyReadonlyArray1<'py, f64>,
+    ) -> PyResult<(Bound<'py, PyArray1<f64>>, f64, bool, bool, Bound<'py, PyDict>)> {
+        let w = latent.as_slice().map_err(|e| EquigymError::new_err(format!("latent: {e}")))?.to_vec();
+        let inner = &mut self.inner;
+        let (r, obs) = py
+            .detach(|| {
+                let r = inner.step(&w)?;
+                Ok::<_, equigym_wrappers::Error>((r, inner.env_mut().observe().to_vec()))
+            })
+            .map_err(sym_err)?;
+        let info = info_dict(py, &r.evaluation)?;
+        info.set_item("success", r.success)?;
+        info.set_item("is_success", r.success)?;
+        info.set_item("executed", r.executed)?;
+        Ok((obs.into_pyarray(py), r.reward, r.terminated, r.truncated, info))
+    }
+
+    /// The action chunk of `latent` at the current observation, without stepping.
+    fn decode<'py>(&mut self, py: Python<'py>, latent: PyReadonlyArray1<'py, f64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let w = latent.as_slice().map_err(|e| EquigymError::new_err(format!("latent: {e}")))?.to_vec();
+        Ok(self.inner.decode(&w).map_err(sym_err)?.into_pyarray(py))
+    }
+
+    fn last_chunk<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.inner.last_chunk().to_vec().into_pyarray(py)
+    }
+    fn observe<'py>(&mut self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.inner.env_mut().observe().to_vec().into_pyarray(py)
+    }
+    fn get_state<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyBytes>> {
+        Ok(PyBytes::new(py, &self.inner.env().get_state().map_err(to_py)?))
+    }
+    fn set_state(&mut self, state: &[u8]) -> PyResult<()> {
+        self.inner.env_mut().set_state(state).map_err(to_py)
+    }
+    #[getter]
+    fn task(&self) -> &'static str {
+        self.inner.env().task().id()
+    }
+    #[getter]
+    fn latent_dim(&self) -> usize {
+        self.inner.latent_dim()
+    }
+    #[getter]
+    fn chunk_len(&self) -> usize {
+        self.inner.chunk_len()
+    }
+    #[getter]
+    fn bound(&self) -> f64 {
+        self.inner.bound()
+    }
+    #[getter]
+    fn horizon(&self) -> usize {
+        self.inner.env().horizon()
+    }
+    #[getter]
+    fn elapsed_steps(&self) -> usize {
+        self.inner.env().elapsed_steps()
+    }
+    #[getter]
+    fn observation_dim(&self) -> usize {
+        self.inner.env().observation_layout().dim()
+    }
+}

@@ -1,0 +1,104 @@
+"""Latent-action environments (DSRL's latent-noise MDP) over a shipped or user diffusion policy.
+
+The action is the diffusion policy's initial noise w (the action chunk's layout, bounded to
+[-bound, bound], default 1.5); each step denoises w once from the current observation with
+deterministic DDIM (in Rust), runs the chunk of absolute actions and returns the summed reward
+(success - 1 per primitive step, in {-chunk_len, ..., 0}). Episodes truncate at the task's
+horizon (counted in primitive steps), never at success. ``info["executed"]`` gives the primitive
+steps, so agents can count environment steps as DSRL does.
+
+>>> env = gymnasium.make("EquiLift-Latent-v0")            # the shipped Lift EDP
+>>> env = gymnasium.make("EquiLift-Latent-v0", policy="my_edp.safetensors", joint_limits=False)
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+
+from equigym import _core
+
+#: gymnasium id -> task id.
+LATENT_ENV_IDS: dict[str, str] = {
+    "EquiLift-Latent-v0": "lift",
+    "EquiStack-Latent-v0": "stack",
+    "EquiSquare-Latent-v0": "square",
+}
+
+#: Where the shipped policies live (``assets/edp/<task>.safetensors`` in the repository).
+ASSET_DIR = Path(__file__).resolve().parents[2] / "assets" / "edp"
+
+
+def shipped_policy(task: str) -> Path:
+    """Path of the EDP shipped for ``task``; FileNotFoundError with a hint when absent."""
+    path = ASSET_DIR / f"{task}.safetensors"
+    if not path.exists():
+        raise FileNotFoundError(
+            f"no shipped diffusion policy for '{task}' at {path}; train one with "
+            f"`python -m baselines.edp train` and pass policy=<file>"
+        )
+    return path
+
+
+class EquiLatentEnv(gymnasium.Env):
+    """A task whose action is the latent noise of an (equivariant) diffusion policy.
+
+    Args:
+        task: task id.
+        policy: a ``.safetensors`` file from ``baselines.edp`` or a loaded
+            :class:`equigym._core.DiffusionPolicy` (shared between envs); default: the shipped one.
+        bound: latent bound (actions are clipped to [-bound, bound]).
+        ddim_steps: denoising steps (default: the policy's, 5).
+        Other keyword arguments (``joint_limits``, ``variant``, ``horizon``, ``ranges``,
+        ``physics``, ``init_joint_noise``, ``urdf``) configure the task as in :class:`EquiEnv`.
+    """
+
+    metadata = {"render_modes": [], "render_fps": 5}
+
+    def __init__(self, task: str = "lift", policy: Any = None, bound: float = 1.5, ddim_steps: int | None = None, **env_kwargs: Any) -> None:
+        if policy is None:
+            policy = shipped_policy(task)
+        if isinstance(policy, Path):
+            policy = str(policy)
+        self.core = _core.LatentEnv(task, policy, bound=bound, ddim_steps=ddim_steps, **env_kwargs)
+        dim = self.core.latent_dim
+        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(self.core.observation_dim,), dtype=np.float32)
+        self.action_space = spaces.Box(-bound, bound, shape=(dim,), dtype=np.float32)
+        self.chunk_len = self.core.chunk_len
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
+            raise ValueError(f"seed must be None or a non-negative integer, got {seed!r}")
+        super().reset(seed=seed)
+        episode_seed = int(seed) if seed is not None else int(self.np_random.integers(0, 2**63 - 1))
+        obs = self.core.reset(episode_seed)
+        return obs.astype(np.float32), {"episode_seed": episode_seed}
+
+    def step(self, action):
+        w = np.asarray(action)
+        if w.dtype.kind not in "fiu":
+            raise TypeError(f"latent action must be numeric, got dtype {w.dtype}")
+        if w.shape != self.action_space.shape:
+            raise ValueError(f"latent action must have shape {self.action_space.shape}, got {w.shape}")
+        obs, reward, terminated, truncated, info = self.core.step(np.ascontiguousarray(w, dtype=np.float64))
+        return obs.astype(np.float32), float(reward), bool(terminated), bool(truncated), info
+
+    def decode(self, action) -> np.ndarray:
+        """The (chunk_len, 10) absolute actions the policy makes of ``action`` now."""
+        return self.core.decode(np.ascontiguousarray(action, dtype=np.float64)).reshape(self.chunk_len, 10)
+
+    def get_state(self) -> bytes:
+        return self.core.get_state()
+
+    def set_state(self, state: bytes) -> None:
+        self.core.set_state(bytes(state))
+
+
+def register_latent_envs() -> None:
+    for env_id, task in LATENT_ENV_IDS.items():
+        if env_id not in gymnasium.registry:
+            gymnasium.register(id=env_id, entry_point="equigym.latent:EquiLatentEnv", kwargs={"task": task})

@@ -1,0 +1,289 @@
+//! The runtime of an exported Equivariant Diffusion Policy (EDP): load a safetensors file
+//! written by `python -m baselines.edp train`, and turn (observation, latent noise) into an
+//! action chunk with deterministic DDIM, batched.
+//!
+//! The file holds a plain MLP (the escnn model's exported linear layers, already permuted into
+//! the task's natural field order), the DDPM schedule (`alphas_cumprod`), the timestep
+//! embedding table and the normalisation. Sampling never clips the predicted clean sample:
+//! elementwise clipping would break equivariance. Arithmetic is float64 throughout.
+
+use std::path::Path;
+
+use equigym_envs::Layout;
+use safetensors::{Dtype, SafeTensors};
+
+use crate::error::{Error, Result};
+
+/// File format tag written by the trainer.
+pub const FORMAT: &str = "equigym-edp-1";
+
+struct Dense {
+    /// Row-major (out, in).
+    weight: Vec<f64>,
+    bias: Vec<f64>,
+    n_in: usize,
+    n_out: usize,
+}
+
+/// A loaded diffusion policy.
+pub struct DiffusionPolicy {
+    layers: Vec<Dense>,
+    alphas_cumprod: Vec<f64>,
+    time_embedding: Vec<f64>,
+    time_dim: usize,
+    obs_offset: Vec<f64>,
+    obs_scale: Vec<f64>,
+    action_offset: Vec<f64>,
+    action_scale: Vec<f64>,
+    /// Task id, chunk length and the rest of the file's metadata.
+    pub task: String,
+    pub chunk_len: usize,
+    pub default_ddim_steps: usize,
+    pub group: String,
+    pub metadata: std::collections::HashMap<String, String>,
+}
+
+fn bad(path: &str, reason: impl Into<String>) -> Error {
+    Error::Policy { path: path.into(), reason: reason.into() }
+}
+
+fn tensor(st: &SafeTensors, path: &str, name: &str, shape: &[usize]) -> Result<Vec<f64>> {
+    let t = st.tensor(name).map_err(|_| bad(path, format!("missing tensor '{name}'")))?;
+    if t.shape() != shape {
+        return Err(bad(path, format!("tensor '{name}' has shape {:?}, expected {shape:?}", t.shape())));
+    }
+    let data = t.data();
+    let values: Vec<f64> = match t.dtype() {
+        Dtype::F32 => data.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64).collect(),
+        Dtype::F64 => data.chunks_exact(8).map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes"))).collect(),
+        other => return Err(bad(path, format!("tensor '{name}' has dtype {other:?}, expected F32 or F64"))),
+    };
+    if let Some(v) = values.iter().find(|v| !v.is_finite()) {
+        return Err(bad(path, format!("tensor '{name}' holds a non-finite value ({v})")));
+    }
+    Ok(values)
+}
+
+fn shape_of(st: &SafeTensors, path: &str, name: &str) -> Result<Vec<usize>> {
+    Ok(st.tensor(name).map_err(|_| bad(path, format!("missing tensor '{name}'")))?.shape().to_vec())
+}
+
+impl DiffusionPolicy {
+    /// Load a policy file.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self> {
+        let p = path.as_ref();
+        let name = p.display().to_string();
+        let bytes = std::fs::read(p).map_err(|e| match e.kind() {
+            std::io::ErrorKind::NotFound => Error::PolicyNotFound(name.clone()),
+            _ => bad(&name, format!("cannot read: {e}")),
+        })?;
+        Self::from_bytes(&bytes, &name)
+    }
+
+    /// Load from the bytes of a policy file (`origin` names it in errors).
+    pub fn from_bytes(bytes: &[u8], origin: &str) -> Result<Self> {
+        let (_, meta) = SafeTensors::read_metadata(bytes).map_err(|e| bad(origin, format!("not a safetensors file ({e})")))?;
+        let metadata = meta.metadata().clone().unwrap_or_default();
+        let st = SafeTensors::deserialize(bytes).map_err(|e| bad(origin, format!("corrupt or truncated ({e})")))?;
+        let get = |k: &str| metadata.get(k).cloned().ok_or_else(|| bad(origin, format!("metadata '{k}' is missing")));
+        let format = get("format")?;
+        if format != FORMAT {
+            return Err(bad(origin, format!("format '{format}' is not '{FORMAT}'")));
+        }
+        let parse = |k: &str| -> Result<usize> {
+            get(k)?.parse::<usize>().map_err(|_| bad(origin, format!("metadata '{k}' is not a count")))
+        };
+        let task = get("task")?;
+        let chunk_len = parse("chunk_len")?;
+        let num_layers = parse("num_layers")?;
+        let steps = parse("num_train_timesteps")?;
+        let default_ddim_steps = parse("ddim_steps")?;
+        if get("activation")? != "relu" {
+            return Err(bad(origin, "only relu activations are supported"));
+        }
+        if num_layers == 0 || chunk_len == 0 || steps == 0 {
+            return Err(bad(origin, "empty network, chunk or schedule"));
+        }
+        let mut layers = Vec::with_capacity(num_layers);
+        for i in 0..num_layers {
+            let shape = shape_of(&st, origin, &format!("layer{i}.weight"))?;
+            if shape.len() != 2 {
+                return Err(bad(origin, format!("layer{i}.weight must be 2-d, got {shape:?}")));
+            }
+            let (n_out, n_in) = (shape[0], shape[1]);
+            if let Some(prev) = layers.last().map(|l: &Dense| l.n_out) {
+                if prev != n_in {
+                    return Err(bad(origin, format!("layer{i} takes {n_in} inputs but layer{} gives {prev}", i - 1)));
+                }
+            }
+            let weight = tensor(&st, origin, &format!("layer{i}.weight"), &[n_out, n_in])?;
+            let bias = tensor(&st, origin, &format!("layer{i}.bias"), &[n_out])?;
+            layers.push(Dense { weight, bias, n_in, n_out });
+        }
+        let emb_shape = shape_of(&st, origin, "time_embedding")?;
+        if emb_shape.len() != 2 || emb_shape[0] != steps {
+            return Err(bad(origin, format!("time_embedding must be ({steps}, dim), got {emb_shape:?}")));
+        }
+        let time_dim = emb_shape[1];
+        let action_dim = chunk_len * equigym_envs::ACTION_DIM;
+        let obs_dim = shape_of(&st, origin, "obs_offset")?.first().copied().unwrap_or(0);
+        if layers[0].n_in != obs_dim + action_dim + time_dim || layers[num_layers - 1].n_out != action_dim {
+            return Err(bad(
+                origin,
+                format!(
+                    "network maps {} -> {}, expected obs {obs_dim} + chunk {action_dim} + time {time_dim} -> {action_dim}",
+                    layers[0].n_in,
+                    layers[num_layers - 1].n_out
+                ),
+            ));
+        }
+        let policy = Self {
+            alphas_cumprod: tensor(&st, origin, "alphas_cumprod", &[steps])?,
+            time_embedding: tensor(&st, origin, "time_embedding", &[steps, time_dim])?,
+            time_dim,
+            obs_offset: tensor(&st, origin, "obs_offset", &[obs_dim])?,
+            obs_scale: tensor(&st, origin, "obs_scale", &[obs_dim])?,
+            action_offset: tensor(&st, origin, "action_offset", &[action_dim])?,
+            action_scale: tensor(&st, origin, "action_scale", &[action_dim])?,
+            layers,
+            task,
+            chunk_len,
+            default_ddim_steps,
+            group: metadata.get("group").cloned().unwrap_or_default(),
+            metadata,
+        };
+        if policy.obs_scale.iter().chain(&policy.action_scale).any(|s| *s <= 0.0) {
+            return Err(bad(origin, "normalisation scales must be positive"));
+        }
+        if policy.alphas_cumprod.iter().any(|a| *a <= 0.0 || *a > 1.0) {
+            return Err(bad(origin, "alphas_cumprod must lie in (0, 1]"));
+        }
+        Ok(policy)
+    }
+
+    /// Check that the policy fits an observation layout (the task's).
+    pub fn check_layout(&self, task: &str, layout: &Layout) -> Result<()> {
+        if task != self.task || layout.dim() != self.obs_dim() {
+            return Err(Error::Policy {
+                path: self.metadata.get("path").cloned().unwrap_or_else(|| "policy".into()),
+                reason: format!(
+                    "trained for task '{}' ({}-d observations), used with '{task}' ({}-d)",
+                    self.task,
+                    self.obs_dim(),
+                    layout.dim()
+                ),
+            });
+        }
+        Ok(())
+    }
+
+    pub fn obs_dim(&self) -> usize {
+        self.obs_offset.len()
+    }
+    /// Dimension of a chunk (and of the latent noise).
+    pub fn action_dim(&self) -> usize {
+        self.action_offset.len()
+    }
+    pub fn num_train_timesteps(&self) -> usize {
+        self.alphas_cumprod.len()
+    }
+
+    /// The DDIM timesteps for `steps` denoising steps (evenly spaced, highest first).
+    pub fn ddim_timesteps(&self, steps: usize) -> Vec<usize> {
+        let ratio = self.num_train_timesteps() / steps.max(1);
+        (0..steps).rev().map(|i| i * ratio).collect()
+    }
+
+    /// Denoise a batch: `obs` (B x obs_dim) and `latent` (B x action_dim) -> chunks
+    /// (B x action_dim, absolute actions), with `steps` deterministic DDIM steps.
+    pub fn sample(&self, obs: &[f64], latent: &[f64], steps: usize, out: &mut [f64]) -> Result<()> {
+        let (od, ad) = (self.obs_dim(), self.action_dim());
+        let b = latent.len() / ad.max(1);
+        let check = |what: &str, v: &[f64], want: usize| equigym_envs::error::check_finite(what, v, want);
+        check("latent", latent, b * ad)?;
+        check("observation batch", obs, b * od)?;
+        if out.len() != b * ad {
+            return Err(equigym_envs::EnvError::WrongLength { what: "output chunk buffer".into(), expected: b * ad, got: out.len() }.into());
+        }
+        if steps == 0 || steps > self.num_train_timesteps() {
+            return Err(equigym_envs::EnvError::InvalidConfig(format!(
+                "DDIM steps must lie in 1..={}, got {steps}",
+                self.num_train_timesteps()
+            ))
+            .into());
+        }
+        let in_dim = od + ad + self.time_dim;
+        let mut input = vec![0.0; b * in_dim];
+        for r in 0..b {
+            for k in 0..od {
+                input[r * in_dim + k] = (obs[r * od + k] - self.obs_offset[k]) / self.obs_scale[k];
+            }
+        }
+        let mut x = latent.to_vec();
+        let mut eps = vec![0.0; b * ad];
+        let mut scratch = (Vec::new(), Vec::new());
+        let ts = self.ddim_timesteps(steps);
+        for (k, &t) in ts.iter().enumerate() {
+            let ab = self.alphas_cumprod[t];
+            let ab_prev = ts.get(k + 1).map_or(1.0, |&p| self.alphas_cumprod[p]);
+            let emb = &self.time_embedding[t * self.time_dim..(t + 1) * self.time_dim];
+            for r in 0..b {
+                let row = &mut input[r * in_dim..(r + 1) * in_dim];
+                row[od..od + ad].copy_from_slice(&x[r * ad..(r + 1) * ad]);
+                row[od + ad..].copy_from_slice(emb);
+            }
+            self.forward(&input, b, &mut eps, &mut scratch);
+            let (sa, s1a) = (ab.sqrt(), (1.0 - ab).sqrt());
+            let (sp, s1p) = (ab_prev.sqrt(), (1.0 - ab_prev).sqrt());
+            for (xi, ei) in x.iter_mut().zip(&eps) {
+                let x0 = (*xi - s1a * ei) / sa;
+                *xi = sp * x0 + s1p * ei;
+            }
+        }
+        for r in 0..b {
+            for k in 0..ad {
+                out[r * ad + k] = x[r * ad + k] * self.action_scale[k] + self.action_offset[k];
+            }
+        }
+        Ok(())
+    }
+
+    /// The MLP on a batch of `rows` inputs (row-major), ReLU between layers.
+    fn forward(&self, input: &[f64], rows: usize, out: &mut [f64], scratch: &mut (Vec<f64>, Vec<f64>)) {
+        let (a, b) = scratch;
+        a.clear();
+        a.extend_from_slice(input);
+        let last = self.layers.len() - 1;
+        for (i, l) in self.layers.iter().enumerate() {
+            b.clear();
+            b.resize(rows * l.n_out, 0.0);
+            for r in 0..rows {
+                b[r * l.n_out..(r + 1) * l.n_out].copy_from_slice(&l.bias);
+            }
+            // b (rows x out) += a (rows x in) * W^T (in x out); W is row-major (out x in).
+            unsafe {
+                matrixmultiply::dgemm(
+                    rows,
+                    l.n_in,
+                    l.n_out,
+                    1.0,
+                    a.as_ptr(),
+                    l.n_in as isize,
+                    1,
+                    l.weight.as_ptr(),
+                    1,
+                    l.n_in as isize,
+                    1.0,
+                    b.as_mut_ptr(),
+                    l.n_out as isize,
+                    1,
+                );
+            }
+            if i < last {
+                b.iter_mut().for_each(|v| *v = v.max(0.0));
+            }
+            std::mem::swap(a, b);
+        }
+        out.copy_from_slice(&a[..out.len()]);
+    }
+}
