@@ -371,6 +371,61 @@ class ExportedPolicy:
         return (x * self.act_scale + self.act_off).numpy()
 
 
+def evaluate(policy_path: str | Path, episodes: int = 100, seed: int = 0, noise_seed: int = 0, progress: bool = True, **env_kwargs: Any) -> dict[str, Any]:
+    """The base policy's success rate: latent noise w ~ N(0, I) clipped to the bound (the
+    'before steering' figure), over seeded episodes; an episode succeeds if any step does."""
+    from equigym import _core
+
+    policy = _core.DiffusionPolicy(str(policy_path))
+    env = _core.LatentEnv(policy.task, policy, **env_kwargs)
+    rng = np.random.default_rng(noise_seed)
+    wins = 0
+    try:
+        from tqdm import trange
+
+        it = trange(episodes, desc=f"eval {policy.task}", disable=not progress)
+    except ImportError:  # pragma: no cover
+        it = range(episodes)
+    for k in it:
+        env.reset(seed + k)
+        success = False
+        while True:
+            w = np.clip(rng.standard_normal(env.latent_dim), -env.bound, env.bound)
+            _, _, term, trunc, info = env.step(w)
+            success |= info["success"]
+            if success or term or trunc:
+                break
+        wins += success
+    return {"task": policy.task, "episodes": episodes, "successes": int(wins), "success_rate": wins / episodes}
+
+
+def benchmark(policy_path: str | Path, batches: tuple[int, ...] = (1, 256), seconds: float = 2.0) -> list[dict[str, Any]]:
+    """Chunks per second of the Rust runtime and of the same MLP + DDIM in PyTorch (float32
+    and float64), side by side, on this machine's threads."""
+    from equigym import _core
+
+    rust = _core.DiffusionPolicy(str(policy_path))
+    rows = []
+    for b in batches:
+        rng = np.random.default_rng(0)
+        obs = rng.normal(size=(b, rust.obs_dim)) * 0.05
+        w = rng.normal(size=(b, rust.action_dim))
+        entries = {"rust (float64)": lambda: rust.sample(obs, w)}
+        for name, dt in (("pytorch (float32)", torch.float32), ("pytorch (float64)", torch.float64)):
+            ref = ExportedPolicy(policy_path, dt)
+            entries[name] = (lambda r: lambda: r.sample(obs, w))(ref)
+        row: dict[str, Any] = {"batch": b}
+        for name, fn in entries.items():
+            fn()
+            n, t0 = 0, time.perf_counter()
+            while time.perf_counter() - t0 < seconds:
+                fn()
+                n += 1
+            row[name] = n * b / (time.perf_counter() - t0)
+        rows.append(row)
+    return rows
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -384,8 +439,23 @@ def main(argv: list[str] | None = None) -> None:
     t.add_argument("--batch-size", type=int, default=EDPConfig.batch_size)
     t.add_argument("--lr", type=float, default=EDPConfig.lr)
     t.add_argument("--seed", type=int, default=0)
+    e = sub.add_parser("eval", help="success rate of the base policy (w ~ N(0, I)) in the latent env")
+    e.add_argument("--policy", required=True)
+    e.add_argument("--episodes", type=int, default=100)
+    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--variant", default=None)
+    b = sub.add_parser("bench", help="chunks/s of the Rust runtime vs PyTorch, batch 1 and 256")
+    b.add_argument("--policy", required=True)
+    b.add_argument("--seconds", type=float, default=2.0)
     a = p.parse_args(argv)
-    if a.cmd == "train":
+    if a.cmd == "eval":
+        kwargs = {"variant": a.variant} if a.variant else {}
+        print(json.dumps(evaluate(a.policy, a.episodes, a.seed, **kwargs)))
+    elif a.cmd == "bench":
+        torch.set_num_threads(1)
+        for row in benchmark(a.policy, seconds=a.seconds):
+            print(json.dumps({k: (round(v, 1) if isinstance(v, float) else v) for k, v in row.items()}))
+    elif a.cmd == "train":
         cfg = EDPConfig(
             equivariant=not a.plain, steps=a.steps, hidden_fields=a.hidden_fields, hidden_layers=a.hidden_layers,
             batch_size=a.batch_size, lr=a.lr, seed=a.seed,

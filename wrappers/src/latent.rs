@@ -44,10 +44,18 @@ pub struct LatentEnv {
 
 impl LatentEnv {
     /// Wrap `env` with `policy` (trained for the same task), latent bound and DDIM steps.
-    pub fn new(env: Env, policy: Arc<DiffusionPolicy>, bound: f64, ddim_steps: usize) -> Result<Self> {
+    pub fn new(
+        env: Env,
+        policy: Arc<DiffusionPolicy>,
+        bound: f64,
+        ddim_steps: usize,
+    ) -> Result<Self> {
         policy.check_layout(env.task().id(), env.observation_layout())?;
         if !(bound.is_finite() && bound > 0.0) {
-            return Err(equigym_envs::EnvError::InvalidConfig(format!("latent bound must be positive, got {bound}")).into());
+            return Err(equigym_envs::EnvError::InvalidConfig(format!(
+                "latent bound must be positive, got {bound}"
+            ))
+            .into());
         }
         if ddim_steps == 0 || ddim_steps > policy.num_train_timesteps() {
             return Err(equigym_envs::EnvError::InvalidConfig(format!(
@@ -57,7 +65,13 @@ impl LatentEnv {
             .into());
         }
         let chunk = vec![0.0; policy.action_dim()];
-        Ok(Self { env, policy, bound, ddim_steps, chunk })
+        Ok(Self {
+            env,
+            policy,
+            bound,
+            ddim_steps,
+            chunk,
+        })
     }
 
     pub fn env(&self) -> &Env {
@@ -90,7 +104,10 @@ impl LatentEnv {
     /// The chunk the policy makes of `latent` at the current observation (no stepping).
     pub fn decode(&mut self, latent: &[f64]) -> Result<Vec<f64>> {
         check_finite("latent action", latent, self.latent_dim())?;
-        let w: Vec<f64> = latent.iter().map(|v| v.clamp(-self.bound, self.bound)).collect();
+        let w: Vec<f64> = latent
+            .iter()
+            .map(|v| v.clamp(-self.bound, self.bound))
+            .collect();
         let obs = self.env.observe().to_vec();
         let mut chunk = vec![0.0; self.latent_dim()];
         self.policy.sample(&obs, &w, self.ddim_steps, &mut chunk)?;
@@ -106,10 +123,22 @@ impl LatentEnv {
     /// Run an already-decoded chunk (used by batched stepping, which denoises many at once).
     pub fn execute(&mut self, chunk: Vec<f64>) -> Result<LatentStep> {
         if chunk.len() != self.latent_dim() {
-            return Err(equigym_envs::EnvError::WrongLength { what: "chunk".into(), expected: self.latent_dim(), got: chunk.len() }.into());
+            return Err(equigym_envs::EnvError::WrongLength {
+                what: "chunk".into(),
+                expected: self.latent_dim(),
+                got: chunk.len(),
+            }
+            .into());
         }
         self.chunk = chunk;
-        let mut out = LatentStep { reward: 0.0, terminated: false, truncated: false, success: false, executed: 0, evaluation: Evaluation::default() };
+        let mut out = LatentStep {
+            reward: 0.0,
+            terminated: false,
+            truncated: false,
+            success: false,
+            executed: 0,
+            evaluation: Evaluation::default(),
+        };
         for a in self.chunk.chunks_exact(ACTION_DIM) {
             let r = self.env.step(a)?;
             out.executed += 1;
@@ -129,11 +158,19 @@ impl LatentEnv {
 /// Step many latent environments with one batched denoising call. They must share one
 /// policy (the same `Arc`) and the same DDIM steps.
 pub fn step_batch(envs: &mut [LatentEnv], latents: &[f64]) -> Result<Vec<LatentStep>> {
-    let Some(first) = envs.first() else { return Ok(Vec::new()) };
+    let Some(first) = envs.first() else {
+        return Ok(Vec::new());
+    };
     let policy = first.policy.clone();
     let steps = first.ddim_steps;
-    if envs.iter().any(|e| !Arc::ptr_eq(&e.policy, &policy) || e.ddim_steps != steps) {
-        return Err(equigym_envs::EnvError::InvalidConfig("batched latent steps need one shared policy and DDIM setting".into()).into());
+    if envs
+        .iter()
+        .any(|e| !Arc::ptr_eq(&e.policy, &policy) || e.ddim_steps != steps)
+    {
+        return Err(equigym_envs::EnvError::InvalidConfig(
+            "batched latent steps need one shared policy and DDIM setting".into(),
+        )
+        .into());
     }
     let (ad, od) = (policy.action_dim(), policy.obs_dim());
     check_finite("latent actions", latents, envs.len() * ad)?;
@@ -145,5 +182,8 @@ pub fn step_batch(envs: &mut [LatentEnv], latents: &[f64]) -> Result<Vec<LatentS
     }
     let mut chunks = vec![0.0; w.len()];
     policy.sample(&obs, &w, steps, &mut chunks)?;
-    envs.iter_mut().zip(chunks.chunks_exact(ad)).map(|(e, c)| e.execute(c.to_vec())).collect()
+    envs.iter_mut()
+        .zip(chunks.chunks_exact(ad))
+        .map(|(e, c)| e.execute(c.to_vec()))
+        .collect()
 }

@@ -30,9 +30,9 @@ pub mod latent;
 pub mod representation;
 pub mod symmetry;
 
+pub use edp::DiffusionPolicy;
 pub use equigym_envs as envs;
 pub use error::{Error, Result};
-pub use edp::DiffusionPolicy;
 pub use group::{Group, PlanarRotation};
 pub use latent::{LatentEnv, LatentStep, DEFAULT_LATENT_BOUND};
 pub use representation::{Block, Representation};

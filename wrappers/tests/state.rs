@@ -12,7 +12,10 @@ fn env(task: &str, joint_limits: bool) -> Env {
 }
 
 fn max_err(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max)
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
 }
 
 /// Observing the rotated state gives the rotated observation, for every task and element.
@@ -27,11 +30,18 @@ fn observation_of_rotated_state_is_rotated_observation() {
         for g in sym.group.elements().unwrap() {
             env.set_state(&state).unwrap();
             let fit = transform_state(&mut env, &g).unwrap();
-            assert!(fit.position_error < 1e-4, "{task}: the arm reaches the rotated start without limits");
+            assert!(
+                fit.position_error < 1e-4,
+                "{task}: the arm reaches the rotated start without limits"
+            );
             let mut expected = obs.clone();
             sym.act_observation(&g, &mut expected).unwrap();
             // Poses pass through rapier's f32 storage.
-            assert!(max_err(env.observe(), &expected) < 1e-5, "{task} at {} deg", g.angle().to_degrees());
+            assert!(
+                max_err(env.observe(), &expected) < 1e-5,
+                "{task} at {} deg",
+                g.angle().to_degrees()
+            );
         }
     }
 }
@@ -67,7 +77,10 @@ fn transitions_are_equivariant_without_joint_limits() {
             let err = max_err(env.observe(), &expected);
             if k == 0 {
                 // Setting a body's pose makes rapier recompute its centre of mass in f32: rounding.
-                assert!(err < 1e-5, "the identity transform changed the step by {err}");
+                assert!(
+                    err < 1e-5,
+                    "the identity transform changed the step by {err}"
+                );
             }
             // Positions (cube, gripper) tightly; orientations and the rest loosely: rapier's
             // friction uses a tangent basis that does not turn with the scene.
@@ -82,8 +95,14 @@ fn transitions_are_equivariant_without_joint_limits() {
         }
         env.set_state(&after).unwrap();
     }
-    assert!(worst_position < 2e-3, "largest position error without joint limits: {worst_position} m");
-    assert!(worst < 3e-2, "largest observation error without joint limits: {worst}");
+    assert!(
+        worst_position < 2e-3,
+        "largest position error without joint limits: {worst_position} m"
+    );
+    assert!(
+        worst < 3e-2,
+        "largest observation error without joint limits: {worst}"
+    );
 }
 
 /// With limits on, some rotated Lift states cannot be reached and the transitions break the
@@ -96,10 +115,20 @@ fn joint_limits_break_the_symmetry() {
     let on = measure(&config).unwrap();
     config.joint_limits = false;
     let off = measure(&config).unwrap();
-    let err = |r: &equigym_wrappers::breaking::BreakingReport| r.mean_over_rotations(|row| row.hand_error_mean);
+    let err = |r: &equigym_wrappers::breaking::BreakingReport| {
+        r.mean_over_rotations(|row| row.hand_error_mean)
+    };
     assert!(on.invariance.iter().any(|r| r.unreachable > 0.0));
     assert!(off.invariance.iter().all(|r| r.unreachable == 0.0));
-    assert!(err(&off) * 5.0 < err(&on), "limits off {} vs on {}", err(&off), err(&on));
+    assert!(
+        err(&off) * 5.0 < err(&on),
+        "limits off {} vs on {}",
+        err(&off),
+        err(&on)
+    );
     assert!(on.invariance[0].observation_error_max < 1e-5);
-    assert_eq!(off.replay[0].successes, off.replay[0].demos, "the identity replay reproduces the demos");
+    assert_eq!(
+        off.replay[0].successes, off.replay[0].demos,
+        "the identity replay reproduces the demos"
+    );
 }

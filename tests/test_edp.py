@@ -1,0 +1,150 @@
+"""Demonstrations, the equivariant diffusion policy (training, export, Rust runtime) and the
+latent-action environments."""
+
+import json
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import equigym
+from equigym import DiffusionPolicy, PolicyError, Symmetry
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("escnn")
+h5py = pytest.importorskip("h5py")
+
+from baselines.edp import EDPConfig, ExportedPolicy, build_net, count_params, train  # noqa: E402
+from equigym.demos import load, record  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def lift_demos(tmp_path_factory):
+    path = tmp_path_factory.mktemp("demos") / "lift.hdf5"
+    summary = record("lift", 3, path, progress=False)
+    assert summary["kept"] == 3
+    return path
+
+
+@pytest.fixture(scope="module")
+def tiny_policy(lift_demos, tmp_path_factory):
+    out = tmp_path_factory.mktemp("edp") / "lift.safetensors"
+    cfg = EDPConfig(steps=30, hidden_fields=4, hidden_layers=2, batch_size=32)
+    train(cfg, lift_demos, out, progress=False)
+    return out
+
+
+def test_demos_use_robomimics_layout(lift_demos):
+    with h5py.File(lift_demos) as f:
+        env_args = json.loads(f["data"].attrs["env_args"])
+        assert env_args["env_name"] == "EquiLift-v0"
+        demo = f["data/demo_0"]
+        n = demo.attrs["num_samples"]
+        assert demo["actions"].shape == (n, 10)
+        assert demo["obs/cube_pos"].shape == (n, 3) and demo["obs/gripper_rot6d"].shape == (n, 6)
+        assert demo["rewards"].shape == (n,) and demo["dones"][-1] == 1 and demo["rewards"][-1] == 1
+        assert f["data"].attrs["total"] == sum(f[f"data/demo_{i}"].attrs["num_samples"] for i in range(3))
+    data = load(lift_demos)
+    assert data["task"] == "lift" and data["demos"][0]["obs"].shape[1] == 22
+    # Replaying the recorded actions from the recorded seed reproduces the demo exactly.
+    env = equigym.CoreEnv("lift")
+    d = data["demos"][1]
+    obs = [env.reset(d["seed"])]
+    for a in d["actions"][:-1]:
+        obs.append(env.step(a)[0])
+    np.testing.assert_array_equal(np.asarray(obs, dtype=np.float32), d["obs"].astype(np.float32))
+
+
+def test_rust_runtime_matches_pytorch(tiny_policy):
+    policy = DiffusionPolicy(tiny_policy)
+    assert policy.task == "lift" and policy.chunk_len == 4 and policy.action_dim == 40 and policy.group == "C8"
+    rng = np.random.default_rng(0)
+    env = equigym.CoreEnv("lift")
+    obs = np.stack([env.reset(s) for s in range(8)])
+    w = rng.normal(size=(8, 40))
+    rust = policy.sample(obs, w).reshape(8, 40)
+    np.testing.assert_allclose(rust, ExportedPolicy(tiny_policy, torch.float64).sample(obs, w), atol=1e-9)
+    np.testing.assert_allclose(rust, ExportedPolicy(tiny_policy, torch.float32).sample(obs, w), atol=1e-4)
+    # Other step counts work; 0 is an error.
+    assert policy.sample(obs, w, steps=10).shape == (8, 4, 10)
+    with pytest.raises(ValueError, match="DDIM steps"):
+        policy.sample(obs, w, steps=0)
+
+
+def test_loaded_policy_is_equivariant(tiny_policy):
+    policy = DiffusionPolicy(tiny_policy)
+    sym = Symmetry("lift")
+    rng = np.random.default_rng(1)
+    env = equigym.CoreEnv("lift")
+    obs = np.stack([env.reset(s) for s in range(6)])
+    w = rng.normal(size=(6, 40))
+    chunk = policy.sample(obs, w).reshape(6, 40)
+    for g in sym.elements:
+        rotated = policy.sample(sym.act_observation(obs, g=g), sym.act_latent(w, g=g)).reshape(6, 40)
+        np.testing.assert_allclose(rotated, sym.act_chunk(chunk, g=g), atol=1e-4)
+
+
+def test_plain_variant_has_a_similar_size_and_is_not_equivariant():
+    sym = Symmetry("lift")
+    equi = build_net(EDPConfig(hidden_fields=8), sym)
+    plain = build_net(EDPConfig(hidden_fields=8, equivariant=False), sym)
+    assert abs(count_params(plain) - count_params(equi)) / count_params(equi) < 0.1
+
+
+def test_bad_policy_files_give_clear_errors(tiny_policy, tmp_path):
+    data = tiny_policy.read_bytes()
+    truncated = tmp_path / "truncated.safetensors"
+    truncated.write_bytes(data[: len(data) // 2])
+    with pytest.raises(PolicyError, match="truncated"):
+        DiffusionPolicy(truncated)
+    garbage = tmp_path / "garbage.safetensors"
+    garbage.write_bytes(b"not a policy at all")
+    with pytest.raises(PolicyError):
+        DiffusionPolicy(garbage)
+    with pytest.raises(FileNotFoundError):
+        DiffusionPolicy(tmp_path / "missing.safetensors")
+    with pytest.raises(PolicyError, match="trained for task 'lift'"):
+        gymnasium.make("EquiStack-Latent-v0", policy=tiny_policy)
+    policy = DiffusionPolicy(tiny_policy)
+    with pytest.raises(ValueError, match="expected obs"):
+        policy.sample(np.zeros((2, 21)), np.zeros((2, 40)))
+    with pytest.raises(ValueError, match="not finite"):
+        policy.sample(np.zeros((1, 22)), np.full((1, 40), np.nan))
+
+
+def test_latent_env_api_reward_and_horizon(tiny_policy):
+    env = gymnasium.make("EquiLift-Latent-v0", policy=tiny_policy, horizon=10)
+    check_env(env.unwrapped)
+    assert env.action_space.shape == (40,) and env.action_space.high[0] == 1.5
+    obs, _ = env.reset(seed=0)
+    executed, rewards = [], []
+    for _ in range(3):
+        obs, r, term, trunc, info = env.step(env.action_space.sample())
+        executed.append(info["executed"])
+        rewards.append(r)
+    assert executed == [4, 4, 2] and trunc and not term
+    assert all(-info_e <= r <= 0 for r, info_e in zip(rewards, executed))
+    with pytest.raises(equigym.ResetNeeded):
+        env.step(np.zeros(40))
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros(39))
+
+
+def test_latent_env_denoises_once_per_step_and_is_deterministic(tiny_policy):
+    env = gymnasium.make("EquiLift-Latent-v0", policy=tiny_policy).unwrapped
+    w = np.random.default_rng(2).uniform(-1.5, 1.5, size=(5, 40))
+    runs = []
+    for _ in range(2):
+        obs, _ = env.reset(seed=7)
+        trace = [obs]
+        for wi in w:
+            chunk = env.decode(wi)
+            trace.append(env.step(wi)[0])
+            # The chunk executed is the one decoded from the observation before the step.
+            np.testing.assert_array_equal(env.core.last_chunk().reshape(4, 10), chunk)
+        runs.append(np.stack(trace))
+    np.testing.assert_array_equal(runs[0], runs[1])
+    # Latent actions beyond the bound are clipped to it.
+    env.reset(seed=1)
+    np.testing.assert_array_equal(env.decode(np.full(40, 9.0)), env.decode(np.full(40, 1.5)))
