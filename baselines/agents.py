@@ -199,11 +199,6 @@ class EquiActor(BasePolicy):
     def _predict(self, observation, deterministic: bool = False):
         return self(observation, deterministic)
 
-    def set_training_mode(self, mode: bool) -> None:
-        # escnn caches expanded weights in eval mode; keep them live (no dropout or batch norm here).
-        self.train(True)
-        self.training = mode
-
 
 class EquiCritic(BaseModel):
     """Twin C_N-invariant Q functions: equivariant trunk on [obs, latent], group pooling, linear."""
@@ -246,8 +241,9 @@ class EquiCritic(BaseModel):
         return self.forward(obs, actions)[0]
 
     def set_training_mode(self, mode: bool) -> None:
+        # escnn caches its expanded weights in eval mode; the target critic's parameters change
+        # by Polyak averaging without a mode switch, so critics always expand on the fly.
         self.train(True)
-        self.training = mode
 
 
 class EquiSACPolicy(SACPolicy):

@@ -1,0 +1,76 @@
+"""Turn steering logs (runs/steer/<task>/<method>/seed<k>/log.csv) into the paper's Table 1
+(peak success, mean +- standard error over seeds, next to the base policy's success) and plots
+of success rate and mean Q against environment steps."""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+LABELS = {"dsrl": "DSRL", "equi": "Equi-DSRL", "approx": "Approx-Equi-DSRL", "sac": "SAC (raw actions)"}
+
+
+def load_runs(root: str | Path) -> dict[tuple[str, str], list[dict]]:
+    runs: dict[tuple[str, str], list[dict]] = defaultdict(list)
+    for log in sorted(Path(root).glob("*/*/seed*/log.csv")):
+        meta = json.loads((log.parent / "run.json").read_text())
+        with open(log) as f:
+            rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f)]
+        if rows:
+            runs[(log.parents[2].name, meta["method"])].append({"meta": meta, "rows": rows})
+    return runs
+
+
+def write_report(root: str | Path, out: str | Path, base: dict[str, float] | None = None) -> str:
+    runs = load_runs(root)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    tasks = sorted({t for t, _ in runs})
+    methods = [m for m in LABELS if any(m == mm for _, mm in runs)]
+    lines = ["# Steering results", "", f"From `{root}` by `python -m baselines.steer report`. Peak success over "
+             "evaluations (each >= 50 episodes unless the runs said otherwise), mean +- standard error over seeds.", "",
+             "| task | base policy | " + " | ".join(LABELS[m] for m in methods) + " |", "|---|---:|" + "---:|" * len(methods)]
+    for t in tasks:
+        cells = []
+        for m in methods:
+            peaks = [max(r["success_rate"] for r in run["rows"]) for run in runs.get((t, m), [])]
+            if peaks:
+                se = np.std(peaks, ddof=1) / np.sqrt(len(peaks)) if len(peaks) > 1 else float("nan")
+                steps = int(max(run["rows"][-1]["env_steps"] for run in runs[(t, m)]))
+                cells.append(f"{np.mean(peaks):.3f} +- {se:.3f} ({len(peaks)} seeds, {steps:,} steps)")
+            else:
+                cells.append("-")
+        b = (base or {}).get(t.split("-")[0])
+        lines.append(f"| {t} | {'-' if b is None else f'{b:.3f}'} | " + " | ".join(cells) + " |")
+    text = "\n".join(lines) + "\n"
+    (out / "table.md").write_text(text)
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:  # pragma: no cover
+        return text
+    for t in tasks:
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+        for m in methods:
+            for k, run in enumerate(runs.get((t, m), [])):
+                x = [r["env_steps"] for r in run["rows"]]
+                kw = {"label": LABELS[m] if k == 0 else None, "color": f"C{methods.index(m)}", "alpha": 0.8}
+                axes[0].plot(x, [r["success_rate"] for r in run["rows"]], **kw)
+                axes[1].plot(x, [r["mean_q"] for r in run["rows"]], **kw)
+        axes[0].set_ylabel("success rate")
+        axes[1].set_ylabel("mean Q (sampled batch)")
+        for ax in axes:
+            ax.set_xlabel("environment steps")
+            ax.grid(alpha=0.3)
+        axes[0].legend()
+        fig.suptitle(t)
+        fig.tight_layout()
+        fig.savefig(out / f"{t}.png", dpi=110)
+        plt.close(fig)
+    return text

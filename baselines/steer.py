@@ -1,0 +1,228 @@
+"""Steer a diffusion policy with RL in the latent-noise MDP: DSRL, Equi-DSRL, Approx-Equi-DSRL
+(and plain SAC on the raw action space), with evaluation, mean-Q logging, resumable checkpoints,
+CSV logs and a report that writes the paper's Table 1 and plots.
+
+    python -m baselines.steer run --method equi --task lift --seed 0 --steps 20000
+    python -m baselines.steer sweep --methods dsrl equi approx --tasks lift --seeds 0 1 2 --steps 20000
+    python -m baselines.steer report --runs runs/steer --out docs/steering
+
+Steps are primitive environment steps (a latent step runs a 4-action chunk). Hyperparameters
+default to DSRL's / the paper's where they fit a CPU (``--preset cpu``: 3 x 256 MLPs and
+parameter-matched equivariant nets, UTD 2, batch 256); ``--preset paper`` uses 3 x 2048, UTD 30
+(Lift) / 20 (Square), which needs a GPU. A killed run resumes from its last checkpoint (model and
+replay buffer) when started again with the same arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+import torch
+from stable_baselines3 import SAC
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+import equigym  # noqa: F401  (registers the ids)
+from baselines.agents import EquiSACPolicy, LayerNormSACPolicy, count_parameters
+
+METHODS = ("dsrl", "equi", "approx", "sac")
+LATENT_IDS = {"lift": "EquiLift-Latent-v0", "stack": "EquiStack-Latent-v0", "square": "EquiSquare-Latent-v0"}
+RAW_IDS = {"lift": "EquiLift-v0", "stack": "EquiStack-v0", "square": "EquiSquare-v0"}
+PRESETS = {
+    "cpu": {"width": 256, "layers": 3, "utd": 2, "batch": 256, "n_envs": 4, "warmup": 1000},
+    "paper": {"width": 2048, "layers": 3, "utd": 30, "batch": 256, "n_envs": 4, "warmup": 6000},
+}
+
+
+class LatentSAC(SAC):
+    """SAC whose warm-up draws the base policy's own noise, N(0, I) clipped to the latent bound,
+    instead of uniform actions (DSRL)."""
+
+    def _sample_action(self, learning_starts, action_noise=None, n_envs=1):
+        if self.num_timesteps < learning_starts and isinstance(self.action_space, gymnasium.spaces.Box):
+            high = self.action_space.high
+            raw = np.clip(np.random.standard_normal((n_envs, *self.action_space.shape)), -high, high).astype(np.float32)
+            return raw, self.policy.scale_action(raw)
+        return super()._sample_action(learning_starts, action_noise, n_envs)
+
+
+def equi_fields_matching(task: str, target: int, layers: int, residual: bool) -> int:
+    """Hidden regular fields whose actor + critic parameter count is closest to ``target``."""
+    obs_space = gymnasium.spaces.Box(-np.inf, np.inf, (equigym.Symmetry(task).dim("observation"),), np.float32)
+    lat_space = gymnasium.spaces.Box(-1.5, 1.5, (40,), np.float32)
+    best, best_gap = 8, None
+    for fields in (8, 16, 24, 32, 48, 64, 96, 128, 192, 256):
+        pol = EquiSACPolicy(obs_space, lat_space, lambda _: 3e-4, task=task, hidden_fields=fields, layers=layers, residual=residual)
+        n = count_parameters(pol.actor) + count_parameters(pol.critic)
+        gap = abs(n - target)
+        if best_gap is None or gap < best_gap:
+            best, best_gap = fields, gap
+        if n > target:
+            break
+    return best
+
+
+def build(method: str, task: str, preset: dict[str, Any], seed: int, joint_limits: bool, policy_file: str | None) -> tuple[SAC, Any]:
+    env_kwargs: dict[str, Any] = {"joint_limits": joint_limits}
+    if method == "sac":
+        make = lambda: gymnasium.wrappers.TimeLimit(gymnasium.make(RAW_IDS[task], action_mode="normalized", reward="sparse", joint_limits=joint_limits).unwrapped, 400)  # noqa: E731
+    else:
+        if policy_file:
+            env_kwargs["policy"] = policy_file
+        make = lambda: gymnasium.make(LATENT_IDS[task], **env_kwargs)  # noqa: E731
+    venv = DummyVecEnv([make for _ in range(preset["n_envs"])])
+    venv.seed(seed)
+    arch = [preset["width"]] * preset["layers"]
+    common = dict(
+        learning_rate=3e-4, buffer_size=1_000_000, batch_size=preset["batch"], tau=0.005,
+        gamma=0.999 if task == "square" else 0.99, train_freq=1, gradient_steps=preset["utd"] * preset["n_envs"],
+        ent_coef="auto_1.0", target_entropy=0.0, seed=seed, verbose=0, device="cpu",
+    )
+    if method in ("dsrl", "sac"):
+        cls = LatentSAC if method == "dsrl" else SAC
+        model = cls(LayerNormSACPolicy, venv, learning_starts=preset["warmup"], policy_kwargs=dict(net_arch=arch, activation_fn=torch.nn.Tanh), **common)
+    else:
+        dsrl = LatentSAC(LayerNormSACPolicy, venv, policy_kwargs=dict(net_arch=arch, activation_fn=torch.nn.Tanh), **common)
+        target = count_parameters(dsrl.actor) + count_parameters(dsrl.critic)
+        residual = method == "approx"
+        fields = equi_fields_matching(task, target, preset["layers"], residual)
+        model = LatentSAC(
+            EquiSACPolicy, venv, learning_starts=preset["warmup"],
+            policy_kwargs=dict(task=task, hidden_fields=fields, layers=preset["layers"], residual=residual), **common,
+        )
+    return model, make
+
+
+def evaluate(model: SAC, make, episodes: int, seed: int = 10_000) -> float:
+    """Success rate of the stochastic actor over seeded episodes (success if any step succeeds)."""
+    env = make()
+    model.policy.set_training_mode(False)
+    wins = 0
+    for k in range(episodes):
+        obs, _ = env.reset(seed=seed + k)
+        done, success = False, False
+        while not done:
+            action, _ = model.predict(obs, deterministic=False)
+            obs, _, term, trunc, info = env.step(action)
+            success |= bool(info.get("success", False))
+            done = term or trunc or success
+        wins += success
+    return wins / episodes
+
+
+def mean_q(model: SAC, batch: int = 256) -> float:
+    if model.replay_buffer is None or model.replay_buffer.size() == 0:
+        return float("nan")
+    data = model.replay_buffer.sample(min(batch, model.replay_buffer.size()))
+    with torch.no_grad():
+        qs = model.critic(data.observations, data.actions)
+    return float(torch.min(torch.cat(qs, dim=1), dim=1).values.mean())
+
+
+class EvalLogger(BaseCallback):
+    def __init__(self, make, log_path: Path, ckpt: Path, every: int, episodes: int, chunk: int, total: int, progress: bool):
+        super().__init__()
+        self.make, self.log_path, self.ckpt, self.every, self.episodes = make, log_path, ckpt, every, episodes
+        self.chunk, self.total, self.t0 = chunk, total, time.time()
+        self.next_eval = 0
+        self.bar = None
+        if progress:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, desc=log_path.parent.name, unit="step")
+
+    def env_steps(self) -> int:
+        return self.model.num_timesteps * self.chunk
+
+    def _on_training_start(self) -> None:
+        self.next_eval = (self.env_steps() // self.every) * self.every
+        if self.bar is not None:
+            self.bar.update(self.env_steps())
+
+    def _on_step(self) -> bool:
+        steps = self.env_steps()
+        if self.bar is not None:
+            self.bar.update(self.model.n_envs * self.chunk)
+        if steps >= self.next_eval:
+            self.next_eval += self.every
+            rate = evaluate(self.model, self.make, self.episodes)
+            new = not self.log_path.exists()
+            with open(self.log_path, "a", newline="") as f:
+                w = csv.writer(f)
+                if new:
+                    w.writerow(["env_steps", "success_rate", "mean_q", "seconds"])
+                w.writerow([steps, rate, mean_q(self.model), round(time.time() - self.t0, 1)])
+            self.model.save(self.ckpt / "model.zip")
+            self.model.save_replay_buffer(self.ckpt / "replay.pkl")
+        return steps < self.total
+
+
+def run(method: str, task: str, seed: int, steps: int, out: str | Path, preset_name: str = "cpu", joint_limits: bool = True,
+        eval_every: int = 2000, eval_episodes: int = 50, policy_file: str | None = None, progress: bool = True) -> Path:
+    preset = PRESETS[preset_name]
+    name = f"{task}{'' if joint_limits else '-nolimits'}/{method}/seed{seed}"
+    run_dir = Path(out) / name
+    ckpt = run_dir / "checkpoint"
+    ckpt.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(1)
+    model, make = build(method, task, preset, seed, joint_limits, policy_file)
+    chunk = 1 if method == "sac" else 4
+    meta = {"method": method, "task": task, "seed": seed, "preset": preset_name, "steps": steps, "joint_limits": joint_limits,
+            "params_actor": count_parameters(model.actor), "params_critic": count_parameters(model.critic)}
+    if (ckpt / "model.zip").exists():
+        model = model.__class__.load(ckpt / "model.zip", env=model.get_env(), device="cpu")
+        model.load_replay_buffer(ckpt / "replay.pkl")
+    (run_dir / "run.json").write_text(json.dumps(meta, indent=1))
+    print(json.dumps(meta))
+    cb = EvalLogger(make, run_dir / "log.csv", ckpt, eval_every, eval_episodes, chunk, steps, progress)
+    remaining = max(0, steps // chunk - model.num_timesteps)
+    if remaining:
+        model.learn(total_timesteps=remaining + model.n_envs, callback=cb, reset_num_timesteps=False)
+    if cb.bar is not None:
+        cb.bar.close()
+    return run_dir
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    for name in ("run", "sweep"):
+        s = sub.add_parser(name)
+        if name == "run":
+            s.add_argument("--method", choices=METHODS, required=True)
+            s.add_argument("--task", default="lift")
+            s.add_argument("--seed", type=int, default=0)
+        else:
+            s.add_argument("--methods", nargs="+", choices=METHODS, default=["dsrl", "equi", "approx"])
+            s.add_argument("--tasks", nargs="+", default=["lift"])
+            s.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+        s.add_argument("--steps", type=int, default=20_000)
+        s.add_argument("--out", default="runs/steer")
+        s.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
+        s.add_argument("--no-joint-limits", action="store_true")
+        s.add_argument("--eval-every", type=int, default=2000)
+        s.add_argument("--eval-episodes", type=int, default=50)
+        s.add_argument("--policy", default=None, help="EDP file (default: the shipped one)")
+    r = sub.add_parser("report")
+    r.add_argument("--runs", default="runs/steer")
+    r.add_argument("--out", default="docs/steering")
+    a = p.parse_args(argv)
+    if a.cmd == "report":
+        from baselines.report import write_report
+
+        print(write_report(a.runs, a.out))
+        return
+    jobs = [(a.method, a.task, a.seed)] if a.cmd == "run" else [(m, t, s) for t in a.tasks for m in a.methods for s in a.seeds]
+    for method, task, seed in jobs:
+        run(method, task, seed, a.steps, a.out, a.preset, not a.no_joint_limits, a.eval_every, a.eval_episodes, a.policy)
+
+
+if __name__ == "__main__":
+    main()
