@@ -85,6 +85,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             println!("  failed in phase {p}: {}", log.iter().filter(|e| !e.success && e.phase == p).count());
         }
     }
+    let failed: Vec<String> = log.iter().enumerate().filter(|(_, e)| !e.success).map(|(s, _)| s.to_string()).collect();
+    if !failed.is_empty() {
+        println!("  failed seeds: {}", failed.join(" "));
+    }
     for (k, name) in names.iter().enumerate() {
         let deg = 360.0 / 8.0;
         table(&format!("success by initial {name} yaw"), &log, 8, |e| (e.starts[k].2.to_degrees() / deg) as usize, |b| {

@@ -141,6 +141,11 @@ pub(crate) fn object_pose(env: &Env, index: usize) -> Isometry3<f64> {
 /// faces of a square box, pi for a bar). The turn is the smallest one (|turn| <= period / 2)
 /// from the home posture, which keeps the last wrist joint far from its limits.
 pub(crate) fn top_down_grasp(env: &Env, finger_yaw: f64, period: f64) -> UnitQuaternion<f64> {
+    turned_home(env, top_down_turn(env, finger_yaw, period))
+}
+
+/// The turn about the world z axis from the home posture that [`top_down_grasp`] uses.
+pub(crate) fn top_down_turn(env: &Env, finger_yaw: f64, period: f64) -> f64 {
     let scene = env.scene();
     let home = scene.robot.tcp_pose(&scene.base, &env.task().scene_spec().home_q).rotation;
     let finger_dir = home * (scene.robot.fingers[0].origin.rotation * scene.robot.fingers[0].axis.into_inner());
@@ -149,5 +154,12 @@ pub(crate) fn top_down_grasp(env: &Env, finger_yaw: f64, period: f64) -> UnitQua
     if turn > period / 2.0 {
         turn -= period;
     }
+    turn
+}
+
+/// The TCP rotation at the robot's home posture turned by `turn` about the world z axis.
+pub(crate) fn turned_home(env: &Env, turn: f64) -> UnitQuaternion<f64> {
+    let scene = env.scene();
+    let home = scene.robot.tcp_pose(&scene.base, &env.task().scene_spec().home_q).rotation;
     UnitQuaternion::from_axis_angle(&Vector3::z_axis(), turn) * home
 }

@@ -1,45 +1,121 @@
-//! Square expert: grasp the nut's handle across its width, lift the nut above the peg, centre the
-//! ring over the peg, lower it down the peg, release and retreat.
+//! Square expert: grasp the nut across the ring, with the fingers on the outer faces of the two
+//! walls parallel to the handle and the grip centred on the nut's centre of mass; lift the nut
+//! above the peg, turn it so the hole lines up with the peg (the hole is square: period pi/2),
+//! centre the hole over the peg from the measured nut pose, lower it down the peg, release and
+//! retreat.
+//!
+//! Why this grasp: held anywhere else (by the handle, or by one wall), the nut's weight has a
+//! lever arm about the grip and the nut tilts in the hand: about the finger axis only contact
+//! friction resists (weakly), about the other axes only the pads' compliant normal forces do.
+//! With the grip centre on the centre of mass the weight makes no torque at all, the wide grip
+//! (7.6 cm) loads the finger motors to their force cap, and both fingers stay outside the hole,
+//! so the nut can be put down the peg while still held.
 
 use nalgebra::{Point3, UnitQuaternion, Vector3};
+use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
 
-use super::{object_pose, top_down_grasp, Expert, ExpertOptions, Phase, Waypoints};
+use super::{object_pose, top_down_turn, turned_home, Expert, ExpertOptions, Phase, Waypoints};
 use crate::env::Env;
-use crate::tasks::square::{handle_centre, NUT_HALF_HEIGHT, PEG_HALF};
+use crate::math::from_vector;
+use crate::tasks::square::{NUT_HALF_HEIGHT, PEG_HALF};
+
+/// Largest turn of the commanded hand rotation per control step (rad).
+const MAX_TURN: f64 = 0.04;
+/// Commanded gripper width while holding the nut, less than the ring's 7.6 cm so that the finger
+/// motors squeeze it with a moderate force (their stiffness times the difference). Commanding a
+/// closed gripper would press the 15 g fingers into the walls with the motors' full force,
+/// where contacts this soft let the pads sink deep into the wall.
+const GRIP_WIDTH: f64 = 0.06;
+/// Largest turn of the hand about the vertical from its home posture when lining the nut up
+/// with the peg (rad); beyond it the last wrist joint nears its limit.
+const MAX_WRIST_TURN: f64 = 2.0;
+/// Acceleration limit of the commanded point (m per control step, per control step: 1.2 m/s^2).
+/// The nut is held by friction; a sudden start or stop of the hand shakes it in the grip.
+const MAX_ACCEL: f64 = 0.003;
 
 pub struct SquareExpert {
     way: Waypoints,
     phase: Phase,
     timer: usize,
+    /// Commanded hand rotation.
     rotation: UnitQuaternion<f64>,
+    /// Hand rotation that lines the hole up with the peg (set when the nut is lifted).
+    carry_rotation: UnitQuaternion<f64>,
+    /// Turn of the grasp rotation about the world z axis from the home posture.
+    grasp_turn: f64,
+    /// Distance the commanded point moved in the last control step.
+    speed: f64,
 }
 
 impl SquareExpert {
     pub fn new(options: ExpertOptions) -> Self {
-        Self { way: Waypoints::new(options), phase: Phase::Approach, timer: 0, rotation: UnitQuaternion::identity() }
+        Self {
+            way: Waypoints::new(options),
+            phase: Phase::Approach,
+            timer: 0,
+            rotation: UnitQuaternion::identity(),
+            carry_rotation: UnitQuaternion::identity(),
+            grasp_turn: 0.0,
+            speed: 0.0,
+        }
     }
 
     fn next(&mut self, phase: Phase) {
         self.phase = phase;
         self.timer = 0;
     }
+
+    /// Move the commanded point towards `goal` at up to `max_speed` per step, accelerating and
+    /// braking smoothly; true when it is there.
+    fn advance(&mut self, goal: Vector3<f64>, max_speed: f64) -> bool {
+        let d = (goal - self.way.commanded).norm();
+        let brake = (2.0 * MAX_ACCEL * d).sqrt();
+        self.speed = max_speed.min(self.speed + MAX_ACCEL).min(brake);
+        let arrived = self.way.advance(goal, self.speed.max(1e-4));
+        if arrived {
+            self.speed = 0.0;
+        }
+        arrived
+    }
+
+    /// Turn the commanded rotation towards `goal` by at most MAX_TURN; true when it is there.
+    fn turn_towards(&mut self, goal: UnitQuaternion<f64>) -> bool {
+        let angle = self.rotation.angle_to(&goal);
+        if angle <= MAX_TURN {
+            self.rotation = goal;
+            true
+        } else {
+            self.rotation = self.rotation.slerp(&goal, MAX_TURN / angle);
+            false
+        }
+    }
+}
+
+/// The nut's centre of mass in its own frame (on the handle's axis, inside the hole).
+fn nut_centre_of_mass(env: &Env) -> Vector3<f64> {
+    let body = env.task().objects()[0].body;
+    from_vector(env.scene().world.bodies[body].local_center_of_mass())
 }
 
 impl Expert for SquareExpert {
     fn reset(&mut self, env: &Env, seed: u64) {
         self.way.reset(env, seed);
         self.next(Phase::Approach);
-        // Fingers close across the handle: along the nut's y axis, which is a bar (period pi).
-        let yaw = Waypoints::yaw(&object_pose(env, 0)) + std::f64::consts::FRAC_PI_2;
-        let yaw = yaw + self.way.options.yaw_noise * self.way.rng.normal();
-        self.rotation = top_down_grasp(env, yaw, std::f64::consts::PI);
+        self.speed = 0.0;
+        // The fingers close across the handle's axis, i.e. along the nut's y axis; a pair of
+        // fingers is symmetric under a half turn.
+        let yaw = Waypoints::yaw(&object_pose(env, 0)) + FRAC_PI_2 + self.way.options.yaw_noise * self.way.rng.normal();
+        self.grasp_turn = top_down_turn(env, yaw, PI);
+        self.rotation = turned_home(env, self.grasp_turn);
+        self.carry_rotation = self.rotation;
     }
 
     fn act(&mut self, env: &Env) -> [f64; 10] {
         let nut_pose = object_pose(env, 0);
         let nut = nut_pose.translation.vector;
-        let handle = (nut_pose * Point3::from(handle_centre())).coords;
-        let peg = object_pose(env, 1).translation.vector;
+        let grip = (nut_pose * Point3::from(nut_centre_of_mass(env))).coords;
+        let peg_pose = object_pose(env, 1);
+        let peg = peg_pose.translation.vector;
         let tcp = env.scene().tcp_pose().translation.vector;
         let table = env.scene().table_top;
         let open = env.max_gripper_width();
@@ -47,34 +123,51 @@ impl Expert for SquareExpert {
         // TCP position that puts the ring's centre at `spot`, given how the nut hangs.
         let held = |spot: Vector3<f64>| spot + (tcp - nut);
         self.timer += 1;
+        let mut turned = true;
+        if matches!(self.phase, Phase::Carry | Phase::Lower) {
+            turned = self.turn_towards(self.carry_rotation);
+        }
         let (goal, speed, width) = match self.phase {
-            Phase::Approach => (handle + Vector3::new(0.0, 0.0, 0.08), 0.03, open),
-            // Grip the upper part of the handle so the finger pads stay clear of the table.
-            Phase::Descend => (Vector3::new(handle.x, handle.y, table + 1.6 * NUT_HALF_HEIGHT), 0.015, open),
-            Phase::Close => (self.way.commanded, 0.0, 0.0),
-            Phase::Lift => (Vector3::new(self.way.commanded.x, self.way.commanded.y, carry_z), 0.025, 0.0),
+            // Above the peg's height: the way there may pass over the peg.
+            Phase::Approach => (Vector3::new(grip.x, grip.y, carry_z), 0.03, open),
+            // The pads reach 1.35 cm below the TCP: stop them just above the table.
+            Phase::Descend => (Vector3::new(grip.x, grip.y, table + 1.6 * NUT_HALF_HEIGHT), 0.025, open),
+            Phase::Close => (self.way.commanded, 0.0, GRIP_WIDTH),
+            Phase::Lift => (Vector3::new(self.way.commanded.x, self.way.commanded.y, carry_z), 0.025, GRIP_WIDTH),
             Phase::Carry => {
                 let g = held(Vector3::new(peg.x, peg.y, nut.z));
-                (Vector3::new(g.x, g.y, carry_z), 0.025, 0.0)
+                (Vector3::new(g.x, g.y, carry_z), 0.025, GRIP_WIDTH)
             }
-            Phase::Lower => {
-                let g = held(Vector3::new(peg.x, peg.y, table + NUT_HALF_HEIGHT + 0.01));
-                (g, 0.012, 0.0)
-            }
+            Phase::Lower => (held(Vector3::new(peg.x, peg.y, table + NUT_HALF_HEIGHT + 0.008)), 0.012, GRIP_WIDTH),
             Phase::Release => (self.way.commanded, 0.0, open),
             Phase::Retreat => (Vector3::new(self.way.commanded.x, self.way.commanded.y, carry_z), 0.02, open),
         };
-        let arrived = self.way.advance(goal, speed);
+        let arrived = self.advance(goal, speed);
         let near = (tcp - goal).norm();
+        let xy_error = (nut.xy() - peg.xy()).norm();
         match self.phase {
-            Phase::Approach if arrived && near < 0.01 => self.next(Phase::Descend),
+            // The open fingers clear the ring by only 2 mm a side: settle before going down.
+            Phase::Approach if arrived && near < 0.002 => self.next(Phase::Descend),
+            Phase::Approach if arrived && self.timer > 100 => self.next(Phase::Descend),
             Phase::Descend if (arrived && near < 0.006) || self.timer > 150 => self.next(Phase::Close),
             Phase::Close if self.timer >= 8 => self.next(Phase::Lift),
             Phase::Lift if arrived && near < 0.02 => {
                 let lifted = nut.z > table + NUT_HALF_HEIGHT + 0.05;
-                self.next(if lifted { Phase::Carry } else { Phase::Approach })
+                if lifted {
+                    // Turn the hand so that the nut's yaw matches the peg's modulo pi/2: by the
+                    // smallest turn, unless that takes the wrist too far from its home posture.
+                    let d = (Waypoints::yaw(&peg_pose) - Waypoints::yaw(&nut_pose) + FRAC_PI_4).rem_euclid(FRAC_PI_2) - FRAC_PI_4;
+                    let mut turn = self.grasp_turn + d;
+                    if turn.abs() > MAX_WRIST_TURN {
+                        turn -= FRAC_PI_2 * turn.signum();
+                    }
+                    self.carry_rotation = turned_home(env, turn);
+                    self.next(Phase::Carry);
+                } else {
+                    self.next(Phase::Approach);
+                }
             }
-            Phase::Carry if arrived && (nut.xy() - peg.xy()).norm() < 0.004 => self.next(Phase::Lower),
+            Phase::Carry if arrived && turned && xy_error < 0.003 => self.next(Phase::Lower),
             Phase::Carry if self.timer > 150 => self.next(Phase::Lower),
             Phase::Lower if arrived && (near < 0.005 || self.timer > 80) => self.next(Phase::Release),
             Phase::Release if self.timer >= 6 => self.next(Phase::Retreat),
