@@ -145,7 +145,10 @@ impl Expert for SquareExpert {
         let arrived = self.advance(goal, speed);
         let near = (tcp - goal).norm();
         let xy_error = (nut.xy() - peg.xy()).norm();
+        // The nut has left the hand (knocked off, or slipped): start over from where it lies.
+        let lost = (tcp - grip).norm() > 0.02;
         match self.phase {
+            Phase::Carry | Phase::Lower if lost => self.next(Phase::Approach),
             // The open fingers clear the ring by only 2 mm a side: settle before going down.
             Phase::Approach if arrived && near < 0.002 => self.next(Phase::Descend),
             Phase::Approach if arrived && self.timer > 100 => self.next(Phase::Descend),
