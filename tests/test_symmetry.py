@@ -118,7 +118,7 @@ def test_rotated_state_observes_as_rotated_observation(task, env_id):
 
 
 def test_transition_equivariance_without_joint_limits():
-    env = gymnasium.make("EquiLift-v0", joint_limits=False).unwrapped
+    env = gymnasium.make("EquiLift-v0", joint_limits=False, controller="cartesian").unwrapped
     sym = Symmetry("lift")
     expert = equigym.Expert("lift")
     env.reset(seed=2)
@@ -196,7 +196,7 @@ def test_symmetric_replay_buffer():
 
 def test_breaking_measurement_reports_joint_limit_effects():
     on = measure_breaking("lift", episodes=3, states_per_episode=2)
-    off = measure_breaking("lift", episodes=3, states_per_episode=2, joint_limits=False)
+    off = measure_breaking("lift", episodes=3, states_per_episode=2, joint_limits=False, cartesian_control=True)
     assert [r["element"] for r in on["invariance"]] == list(range(8))
     assert on["invariance"][0]["observation_error_max"] < 1e-5
     s_on, s_off = summarize(on), summarize(off)

@@ -92,6 +92,7 @@ impl Env {
                     "max_finger_force" => p.max_finger_force = value.extract()?,
                     "finger_speed" => p.finger_speed = value.extract()?,
                     "servo_time_constant" => p.servo_time_constant = value.extract()?,
+                    "cartesian_control" => p.cartesian_control = value.extract()?,
                     other => return Err(EquigymError::new_err(format!("unknown physics option '{other}'"))),
                 }
             }

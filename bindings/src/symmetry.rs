@@ -220,13 +220,14 @@ impl TaskSymmetry {
 
 /// Measure a task's symmetry breaking (see `equigym_wrappers::breaking`); returns JSON.
 #[pyfunction]
-#[pyo3(signature = (task, *, variant=None, joint_limits=true, group_order=8, episodes=20, states_per_episode=4, probe_steps=1, replay_slack=30, seed=0))]
+#[pyo3(signature = (task, *, variant=None, joint_limits=true, cartesian_control=false, group_order=8, episodes=20, states_per_episode=4, probe_steps=1, replay_slack=30, seed=0))]
 #[allow(clippy::too_many_arguments)]
 pub fn measure_symmetry_breaking(
     py: Python<'_>,
     task: &str,
     variant: Option<String>,
     joint_limits: bool,
+    cartesian_control: bool,
     group_order: usize,
     episodes: usize,
     states_per_episode: usize,
@@ -238,6 +239,7 @@ pub fn measure_symmetry_breaking(
         task: task.into(),
         variant,
         joint_limits,
+        cartesian_control,
         group_order,
         episodes,
         states_per_episode,

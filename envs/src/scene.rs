@@ -51,6 +51,10 @@ pub struct PhysicsConfig {
     pub servo_time_constant: f64,
     /// Whether the arm's joint limits are enforced (turn off for symmetry ablations).
     pub joint_limits: bool,
+    /// Cartesian (operational-space-like) arm control instead of joint-space interpolation
+    /// (see [`ArmController`]); with `joint_limits` off it makes every control step commute
+    /// with rotations of the scene about a vertical axis.
+    pub cartesian_control: bool,
 }
 
 impl Default for PhysicsConfig {
@@ -66,6 +70,7 @@ impl Default for PhysicsConfig {
             finger_speed: 0.2,
             servo_time_constant: 0.02,
             joint_limits: true,
+            cartesian_control: false,
         }
     }
 }
@@ -99,15 +104,21 @@ impl PhysicsConfig {
 
 /// State of the arm controller.
 ///
-/// The controller is Cartesian, like an operational-space controller: each control step moves
-/// a commanded TCP pose towards the (reachable part of the) target at bounded linear and
-/// angular speed, and a servo makes the hand follow it. Joint limits enter through inverse
-/// kinematics: the target is replaced by the closest pose the arm reaches within its limits.
-/// Without joint limits every step of this controller commutes with rotations of the scene
-/// about a vertical axis (the symmetry the project studies).
+/// Two controllers share it (see [`PhysicsConfig::cartesian_control`]):
+/// - **joint** (default): the target goes through IK, the joints move towards the solution at
+///   most at their velocity limits, and the hand follows the forward kinematics of the
+///   interpolated joints (the Panda's own joint-space behaviour);
+/// - **Cartesian**: a commanded TCP pose moves towards the closest reachable pose along a
+///   straight line and the rotation geodesic at bounded speed, like an operational-space
+///   controller. Without joint limits it commutes with rotations of the scene about a vertical
+///   axis, so it isolates the joint limits as the cause of symmetry breaking.
+///
+/// Either way a velocity servo makes the dynamic hand body follow the per-substep target.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ArmController {
-    /// Commanded TCP pose at the end of the last control step.
+    /// Commanded joints at the end of the last control step (joint controller).
+    pub q_cmd: Vec<f64>,
+    /// Commanded TCP pose at the end of the last control step (Cartesian controller).
     pub tcp_cmd: Isometry3<f64>,
     /// Joints that reproduce the hand's actual pose (the "measured" joint positions, used to
     /// draw the arm and to warm-start inverse kinematics).
@@ -118,8 +129,11 @@ pub struct ArmController {
     pub finger_cmd: f64,
 }
 
-/// How far the commanded TCP may run ahead of the actual one (m, rad): bounds the wind-up
-/// when the hand is blocked, so it does not leap when released.
+/// How far the commanded joints may run ahead of the measured ones (rad): bounds the wind-up
+/// when the hand is blocked, so it does not leap when released (joint controller).
+const MAX_JOINT_LEAD: f64 = 0.15;
+
+/// How far the commanded TCP may run ahead of the actual one (m, rad) (Cartesian controller).
 const MAX_TCP_LEAD: f64 = 0.05;
 const MAX_TCP_LEAD_ANGLE: f64 = 0.25;
 
@@ -333,7 +347,7 @@ impl Scene {
             hand_colliders,
             finger_colliders: [finger_colliders[0].clone(), finger_colliders[1].clone()],
         };
-        let arm = ArmController { tcp_cmd: robot.tcp_pose(&base, &q), q_meas: q.clone(), q_des: q, finger_cmd: finger_start };
+        let arm = ArmController { q_cmd: q.clone(), tcp_cmd: robot.tcp_pose(&base, &q), q_meas: q.clone(), q_des: q, finger_cmd: finger_start };
         Ok(Self {
             world,
             robot,
@@ -368,7 +382,7 @@ impl Scene {
             self.set_finger_motor(k, travel);
         }
         let tcp_cmd = self.robot.tcp_pose(&self.base, &q);
-        self.arm = ArmController { tcp_cmd, q_meas: q.clone(), q_des: q, finger_cmd: travel };
+        self.arm = ArmController { q_cmd: q.clone(), tcp_cmd, q_meas: q.clone(), q_des: q, finger_cmd: travel };
     }
 
     /// Move `bodies` rigidly by `motion`: poses and velocities (linear and angular) turn with it.
@@ -385,7 +399,7 @@ impl Scene {
     }
 
     /// Move the hand and fingers rigidly by `motion` (with the commanded TCP pose) and re-solve
-    /// the arm's joints (measured and desired) for the moved poses; the base stays put. Each solve starts from
+    /// the arm's joints (measured, commanded and desired) for the moved poses; the base stays put. Each solve starts from
     /// the joints it replaces, then from each warm start in `seeds`, and keeps the best fit.
     /// Returns the worst fit: a moved hand the arm cannot reach (joint limits, reach) keeps its
     /// pose, and the controller pulls it back towards a reachable one on the next step.
@@ -409,11 +423,13 @@ impl Scene {
         };
         let (q_meas, fit) = solve(&self.tcp_pose(), &self.arm.q_meas);
         let (q_des, fit_des) = solve(&(motion * model.tcp_pose(&self.base, &self.arm.q_des)), &self.arm.q_des);
+        let (q_cmd, fit_cmd) = solve(&(motion * model.tcp_pose(&self.base, &self.arm.q_cmd)), &self.arm.q_cmd);
+        self.arm.q_cmd = q_cmd;
         self.arm.tcp_cmd = motion * self.arm.tcp_cmd;
         self.arm.q_meas = q_meas;
         self.arm.q_des = q_des;
         let mut worst = fit;
-        for other in [fit_des] {
+        for other in [fit_des, fit_cmd] {
             worst.position_error = worst.position_error.max(other.position_error);
             worst.rotation_error = worst.rotation_error.max(other.rotation_error);
             worst.converged &= other.converged;
@@ -478,17 +494,55 @@ impl Scene {
         let tcp_now = self.tcp_pose();
         let mut q_meas = std::mem::take(&mut self.arm.q_meas);
         model.solve_ik(&self.base, &tcp_now, &mut q_meas, &self.ik);
-        // The reachable part of the target: the closest pose within the joint limits.
         let mut q_des = std::mem::take(&mut self.arm.q_des);
         let fit = model.solve_ik(&self.base, target, &mut q_des, &self.ik);
-        // A target reached within the IK tolerance is used as is, so the commanded path does
-        // not depend on the joint configuration the solver happened to start from.
-        let reachable = if fit.converged { *target } else { model.tcp_pose(&self.base, &q_des) };
 
-        // This step's commanded path: from the last command (kept near the actual pose) towards
-        // the reachable target at bounded speed.
-        let start = approach(&tcp_now, &self.arm.tcp_cmd, MAX_TCP_LEAD, MAX_TCP_LEAD_ANGLE);
-        let end = approach(&start, &reachable, MAX_TCP_SPEED * period, MAX_TCP_ANGULAR_SPEED * period);
+        // This step's commanded hand path, as a function of the fraction a in [0, 1].
+        let dof = model.dof();
+        let tcp_to_hand = self.robot.tcp_offset.inverse();
+        let (q_start, q_end, start, end);
+        if self.config.cartesian_control {
+            // The reachable part of the target (a target reached within the IK tolerance is used
+            // as is, so the path does not depend on where the solver started), approached from
+            // the last command (kept near the actual pose) at bounded speed.
+            let reachable = if fit.converged { *target } else { model.tcp_pose(&self.base, &q_des) };
+            start = approach(&tcp_now, &self.arm.tcp_cmd, MAX_TCP_LEAD, MAX_TCP_LEAD_ANGLE);
+            end = approach(&start, &reachable, MAX_TCP_SPEED * period, MAX_TCP_ANGULAR_SPEED * period);
+            q_start = q_meas.clone();
+            q_end = q_des.clone();
+        } else {
+            let mut qs = self.arm.q_cmd.clone();
+            for k in 0..dof {
+                qs[k] = qs[k].clamp(q_meas[k] - MAX_JOINT_LEAD, q_meas[k] + MAX_JOINT_LEAD);
+            }
+            let mut qe = qs.clone();
+            for k in 0..dof {
+                let max = model.joints[k].max_velocity * period;
+                qe[k] += (q_des[k] - qs[k]).clamp(-max, max);
+            }
+            model.clamp_to_limits(&mut qe);
+            start = model.tcp_pose(&self.base, &qs);
+            end = model.tcp_pose(&self.base, &qe);
+            q_start = qs;
+            q_end = qe;
+        }
+        let cartesian = self.config.cartesian_control;
+        let base = self.base;
+        let mut q_s = q_start.clone();
+        let mut hand_path = |a: f64| -> Isometry3<f64> {
+            if cartesian {
+                let tcp = Isometry3::from_parts(
+                    start.translation.vector.lerp(&end.translation.vector, a).into(),
+                    start.rotation.slerp(&end.rotation, a),
+                );
+                tcp * tcp_to_hand
+            } else {
+                for k in 0..dof {
+                    q_s[k] = q_start[k] + (q_end[k] - q_start[k]) * a;
+                }
+                model.hand_pose(&base, &q_s)
+            }
+        };
 
         let f = &self.robot.fingers[0];
         let travel = finger_travel.clamp(f.lower, f.upper);
@@ -498,16 +552,11 @@ impl Scene {
         let inertia = self.robot.hand_inertia.principal_inertia.max().max(1e-4);
         let max_dw = self.config.max_hand_torque * dt / inertia;
         let tau = self.config.servo_time_constant.max(dt);
-        let tcp_to_hand = self.robot.tcp_offset.inverse();
-        let mut prev_target = start * tcp_to_hand;
+        let mut prev_target = hand_path(0.0);
 
         for s in 1..=self.config.substeps {
             let a = s as f64 / self.config.substeps as f64;
-            let tcp_s = Isometry3::from_parts(
-                start.translation.vector.lerp(&end.translation.vector, a).into(),
-                start.rotation.slerp(&end.rotation, a),
-            );
-            let hand_target = tcp_s * tcp_to_hand;
+            let hand_target = hand_path(a);
             let ff_v = (hand_target.translation.vector - prev_target.translation.vector) / dt;
             let ff_w = rotation_error(&hand_target.rotation, &prev_target.rotation) / dt;
             prev_target = hand_target;
@@ -543,6 +592,7 @@ impl Scene {
             self.world.step();
         }
         self.arm.tcp_cmd = end;
+        self.arm.q_cmd = q_end;
         self.arm.q_meas = q_meas;
         self.arm.q_des = q_des;
     }
@@ -562,7 +612,7 @@ impl Scene {
     pub fn restore(&mut self, bytes: &[u8]) -> Result<()> {
         let state: SceneState = postcard::from_bytes(bytes)
             .map_err(|e| EnvError::InvalidState(format!("cannot decode the scene: {e}")))?;
-        if state.arm.q_meas.len() != self.robot.dof() || state.arm.q_des.len() != self.robot.dof()
+        if state.arm.q_cmd.len() != self.robot.dof() || state.arm.q_meas.len() != self.robot.dof() || state.arm.q_des.len() != self.robot.dof()
             || state.world.bodies.len() != self.world.bodies.len()
             || state.world.colliders.len() != self.world.colliders.len()
         {

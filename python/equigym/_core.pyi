@@ -94,6 +94,7 @@ def measure_symmetry_breaking(
     *,
     variant: str | None = None,
     joint_limits: bool = True,
+    cartesian_control: bool = False,
     group_order: int = 8,
     episodes: int = 20,
     states_per_episode: int = 4,

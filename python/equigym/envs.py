@@ -43,6 +43,10 @@ class EquiEnv(gymnasium.Env):
         ranges: overrides of the initial-state ranges, name -> (low, high).
         variant: reset distribution, ``"D0"``, ``"D1"`` or ``"D2"`` (default: Stack D1,
             Square D2; Lift has only its own).
+        controller: ``"joint"`` (default: IK, joint-space interpolation at the joints' speed
+            limits) or ``"cartesian"`` (straight-line TCP paths; with ``joint_limits=False`` it
+            commutes with rotations of the scene, which isolates the joint limits in symmetry
+            ablations).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -62,7 +66,13 @@ class EquiEnv(gymnasium.Env):
         physics: dict[str, float] | None = None,
         ranges: dict[str, tuple[float, float]] | None = None,
         variant: str | None = None,
+        controller: str = "joint",
     ) -> None:
+        if controller not in ("joint", "cartesian"):
+            raise ValueError(f"controller must be 'joint' or 'cartesian', got {controller!r}")
+        physics = dict(physics or {})
+        if controller == "cartesian":
+            physics["cartesian_control"] = True
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         if action_mode not in _ACTION_MODES:

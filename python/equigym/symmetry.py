@@ -160,6 +160,7 @@ def measure_breaking(
     *,
     variant: str | None = None,
     joint_limits: bool = True,
+    cartesian_control: bool = False,
     group_order: int = 8,
     episodes: int = 20,
     states_per_episode: int = 4,
@@ -174,12 +175,15 @@ def measure_breaking(
     C_N (observation, object and hand position errors, dense-reward and success mismatch,
     fraction of rotated states the arm cannot reach), and (b) replays each successful
     demonstration open loop after rotating its initial state and actions by each g.
+    ``cartesian_control`` switches the arm to the Cartesian controller (with joint limits off,
+    the only setting whose physics commutes with the group up to the contact solver).
     Returns a dict with ``config``, ``expert_successes``, ``invariance`` and ``replay`` rows.
     """
     text = _core.measure_symmetry_breaking(
         task,
         variant=variant,
         joint_limits=joint_limits,
+        cartesian_control=cartesian_control,
         group_order=group_order,
         episodes=episodes,
         states_per_episode=states_per_episode,

@@ -33,16 +33,21 @@ SETTINGS: list[tuple[str, str | None]] = [
 
 def run(settings: list[tuple[str, str | None]], episodes: int, group_order: int, progress: bool = True) -> list[dict[str, Any]]:
     reports = []
-    jobs = [(t, v, lim) for t, v in settings for lim in (True, False)]
+    # (joint limits, Cartesian control): the shipped setting, limits off, and each with the
+    # Cartesian controller, which separates the joint limits from joint-space interpolation.
+    modes = [(True, False), (False, False), (True, True), (False, True)]
+    jobs = [(t, v, lim, cart) for t, v in settings for lim, cart in modes]
     try:
         from tqdm import tqdm
 
         iterator = tqdm(jobs, desc="symmetry breaking", disable=not progress)
     except ImportError:
         iterator = jobs
-    for task, variant, limits in iterator:
+    for task, variant, limits, cartesian in iterator:
         t0 = time.perf_counter()
-        report = measure_breaking(task, variant=variant, joint_limits=limits, episodes=episodes, group_order=group_order)
+        report = measure_breaking(
+            task, variant=variant, joint_limits=limits, cartesian_control=cartesian, episodes=episodes, group_order=group_order
+        )
         report["seconds"] = time.perf_counter() - t0
         reports.append(report)
     return reports
@@ -63,31 +68,32 @@ def markdown(reports: list[dict[str, Any]], command: str) -> str:
         "Replay: the expert's successful demonstrations, initial state and actions rotated by g, "
         "replayed open loop.".replace("{N}", str(len(reports[0]["invariance"]))),
         "",
-        "| task | range | joint limits | expert | obs err | object err (mm) | hand err (mm) | dense-reward err "
+        "| task | range | joint limits | controller | expert | obs err | object err (mm) | hand err (mm) | dense-reward err "
         "| success mismatch | unreachable | rotated replay success | floor |",
-        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in reports:
         c = r["config"]
         s = summarize(r)
         lines.append(
             f"| {c['task']} | {c['variant'] or 'default'} | {'on' if c['joint_limits'] else 'off'} "
-            f"| {r['expert_successes']}/{r['expert_episodes']} | {_fmt(s['observation_error'], '.4f')} "
+            f"| {'Cartesian' if c['cartesian_control'] else 'joint'} | {r['expert_successes']}/{r['expert_episodes']} | {_fmt(s['observation_error'], '.4f')} "
             f"| {_fmt(s['object_error_mm'], '.2f')} | {_fmt(s['hand_error_mm'], '.2f')} | {_fmt(s['reward_error'], '.4f')} "
             f"| {_fmt(s['success_mismatch'], '.3f')} | {_fmt(s['unreachable'], '.3f')} "
             f"| {_fmt(s['rotated_replay_success'], '.3f')} | {s['floor_observation_error']:.1e} |"
         )
     lines += ["", "## By rotation angle (replay success; hand error in mm)", ""]
     angles = [row["angle_deg"] for row in reports[0]["replay"]]
-    lines.append("| task | range | limits | " + " | ".join(f"{a:.0f} deg" for a in angles) + " |")
-    lines.append("|---|---|---|" + "---:|" * len(angles))
+    lines.append("| task | range | limits | controller | " + " | ".join(f"{a:.0f} deg" for a in angles) + " |")
+    lines.append("|---|---|---|---|" + "---:|" * len(angles))
     for r in reports:
         c = r["config"]
         cells = []
         for inv, rep in zip(r["invariance"], r["replay"]):
             rate = rep["successes"] / rep["demos"] if rep["demos"] else float("nan")
             cells.append(f"{_fmt(rate, '.2f')} / {1e3 * inv['hand_error_mean']:.1f}")
-        lines.append(f"| {c['task']} | {c['variant'] or 'default'} | {'on' if c['joint_limits'] else 'off'} | " + " | ".join(cells) + " |")
+        ctrl = "Cartesian" if c["cartesian_control"] else "joint"
+        lines.append(f"| {c['task']} | {c['variant'] or 'default'} | {'on' if c['joint_limits'] else 'off'} | {ctrl} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -100,8 +106,9 @@ def plot(reports: list[dict[str, Any]], path: Path) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
     for r in reports:
         c = r["config"]
-        label = f"{c['task']} {c['variant'] or ''} limits {'on' if c['joint_limits'] else 'off'}".replace("  ", " ")
-        style = "-" if c["joint_limits"] else "--"
+        ctrl = "cart" if c["cartesian_control"] else "joint"
+        label = f"{c['task']} {c['variant'] or ''} limits {'on' if c['joint_limits'] else 'off'} {ctrl}".replace("  ", " ")
+        style = ("-" if c["joint_limits"] else "--") if not c["cartesian_control"] else (":" if c["joint_limits"] else "-.")
         angles = [row["angle_deg"] for row in r["invariance"]]
         axes[0].plot(angles, [1e3 * row["hand_error_mean"] + 1e-4 for row in r["invariance"]], style, marker="o", label=label)
         rates = [row["successes"] / row["demos"] if row["demos"] else float("nan") for row in r["replay"]]

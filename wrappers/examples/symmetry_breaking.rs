@@ -1,7 +1,7 @@
 //! Measure a task's symmetry breaking from Rust (the Python command `python -m
 //! equigym.symmetry_report` runs the same measurement over many settings and writes tables).
 //!
-//! `cargo run --release -p equigym-wrappers --example symmetry_breaking -- [task] [variant] [limits on|off] [episodes]`
+//! `cargo run --release -p equigym-wrappers --example symmetry_breaking -- [task] [variant] [limits on|off] [episodes] [joint|cartesian]`
 
 use equigym_wrappers::breaking::{measure, BreakingConfig};
 
@@ -10,6 +10,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut config = BreakingConfig::new(args.get(1).map_or("lift", |s| s.as_str()));
     config.variant = args.get(2).filter(|s| !s.is_empty() && *s != "-").cloned();
     config.joint_limits = args.get(3).is_none_or(|s| s != "off");
+    config.cartesian_control = args.get(5).is_some_and(|s| s == "cartesian");
     if let Some(n) = args.get(4) {
         config.episodes = n.parse()?;
     }

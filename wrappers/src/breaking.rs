@@ -31,6 +31,8 @@ pub struct BreakingConfig {
     /// Reset distribution ("D0", "D1", "D2"); None = the task's default.
     pub variant: Option<String>,
     pub joint_limits: bool,
+    /// Cartesian arm control instead of joint-space interpolation (see `PhysicsConfig`).
+    pub cartesian_control: bool,
     /// Order N of the cyclic group whose elements are probed.
     pub group_order: usize,
     /// Expert episodes (seeds `seed .. seed + episodes`): demonstrations and sampled states.
@@ -50,6 +52,7 @@ impl BreakingConfig {
             task: task.into(),
             variant: None,
             joint_limits: true,
+            cartesian_control: false,
             group_order: 8,
             episodes: 20,
             states_per_episode: 4,
@@ -177,6 +180,7 @@ pub fn measure(config: &BreakingConfig) -> Result<BreakingReport> {
     let mut env_config = EnvConfig::new(&config.task);
     env_config.reward = RewardKind::Dense;
     env_config.physics.joint_limits = config.joint_limits;
+    env_config.physics.cartesian_control = config.cartesian_control;
     env_config.task_options.variant = config.variant.clone();
     let mut env = Env::new(env_config)?;
     let sym = TaskSymmetry::for_env(&env, group, 1)?;
