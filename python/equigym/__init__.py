@@ -5,6 +5,7 @@ Importing the package registers the gymnasium ids (gymnasium 1.x has no plugin e
 >>> import gymnasium, equigym
 >>> env = gymnasium.make("EquiLift-v0", render_mode="rgb_array")
 >>> obs, info = env.reset(seed=0)
+>>> envs = gymnasium.make_vec("EquiLift-v0", num_envs=16)   # B envs stepped in Rust
 """
 
 from equigym._core import (
@@ -19,6 +20,7 @@ from equigym._core import Env as CoreEnv
 from equigym._core import Expert
 from equigym.envs import ENV_IDS, EquiEnv, register_envs
 from equigym.rendering import save_gif
+from equigym.vector import EquiVectorEnv
 
 register_envs()
 
@@ -26,6 +28,7 @@ __all__ = [
     "CoreEnv",
     "ENV_IDS",
     "EquiEnv",
+    "EquiVectorEnv",
     "EquigymError",
     "Expert",
     "InvalidStateError",
