@@ -68,6 +68,10 @@ def parse_args():
     ap.add_argument("--quick", action="store_true", help="smoke test: fewer steps, B in 1,8,64")
     ap.add_argument("--timeout", type=float, default=1800)
     ap.add_argument("--out", type=Path, default=HERE / "results" / "suite.md")
+    ap.add_argument("--update-readme", action="store_true",
+                    help="also rewrite the figures between the suite markers in README.md")
+    ap.add_argument("--from-json", type=Path,
+                    help="measure nothing: rewrite the report, plot (and README) from a suite JSON file")
     args = ap.parse_args()
     if args.quick:
         args.steps, args.reps, args.resets, args.warmup = 300, 1, 3, 50
@@ -120,14 +124,16 @@ def bench_vector(env_id, b, t, args):
     res["reset_ms"] = 1e3 * statistics.median(rs)
     for a in [space.sample() for _ in range(max(5, n // 10))]:
         envs.step(a)
-    rates, py_share, step_us, rust_us = [], [], [], []
+    rates, py_share, step_us, rust_us, cpu_us = [], [], [], [], []
     for _ in range(args.reps):
         actions = [space.sample() for _ in range(n)]
         core.stepping_seconds = 0.0
+        c0 = time.process_time()  # CPU time of every thread of the process, load-independent
         t0 = time.perf_counter()
         for a in actions:
             envs.step(a)
         wall = time.perf_counter() - t0
+        cpu_us.append(1e6 * (time.process_time() - c0) / (n * b))
         rust = core.stepping_seconds
         rates.append(n * b / wall)
         step_us.append(1e6 * wall / n)
@@ -135,6 +141,7 @@ def bench_vector(env_id, b, t, args):
         py_share.append((wall - rust) / wall)
     k = rates.index(statistics.median(rates))  # report the median run's numbers together
     res.update(batch_steps=n, env_steps_per_s=rates[k], env_steps_per_s_runs=rates, step_us=step_us[k],
+               cpu_us_per_env_step=cpu_us[k],
                rust_step_us=rust_us[k], python_us=step_us[k] - rust_us[k], python_share=py_share[k])
     envs.close()
     del envs, core
@@ -191,19 +198,26 @@ def report(meta, single, pandagym, vector, plot_name):
             L.append(f"\npanda-gym error: {pandagym['error']}")
     L += ["", f"## Vector env ({m['args']['vector_task']}, `gymnasium.make_vec`, auto-reset on)", "",
           "Env steps/s of the whole batch; *Python share* = (wall time of `EquiVectorEnv.step` − time inside the "
-          "Rust batched step) / wall time. T threads run pinned to the first T CPUs.", "",
-          "| B | " + " | ".join(f"T={t} env steps/s | T={t} µs/step | T={t} Python share" for t in m["args"]["threads"])
-          + " | T=2 / T=1 | reset ms (T=1) |",
-          "|---:|" + "---:|---:|---:|" * len(m["args"]["threads"]) + "---:|---:|"]
+          "Rust batched step) / wall time. T threads run pinned to the first T CPUs. *CPU µs/env step* is the "
+          "process CPU time (all threads) per environment step: it does not depend on other processes' load, so "
+          "*CPU T=1 / T=2* shows how much extra work running on two threads costs (1.00 = none; the wall-clock "
+          "ratio on an idle machine would approach 2 × that).", "",
+          "| B | " + " | ".join(f"T={t} env steps/s | T={t} µs/step | T={t} Python share | T={t} CPU µs/env step"
+                               for t in m["args"]["threads"])
+          + " | T=2 / T=1 | CPU T=1 / T=2 | reset ms (T=1) |",
+          "|---:|" + "---:|---:|---:|---:|" * len(m["args"]["threads"]) + "---:|---:|---:|"]
     by = {(v["B"], v["threads"]): v for v in vector}
     for b in m["args"]["batch_sizes"]:
         cells = []
         for t in m["args"]["threads"]:
             v = by.get((b, t))
             cells += [fmt(get(v, "env_steps_per_s")), fmt(get(v, "step_us"), ",.0f"),
-                      fmt(100 * get(v, "python_share") if get(v, "python_share") is not None else None, ".1f") + " %"]
+                      fmt(100 * get(v, "python_share") if get(v, "python_share") is not None else None, ".1f") + " %",
+                      fmt(get(v, "cpu_us_per_env_step"), ".0f")]
         r1, r2 = get(by.get((b, 1)), "env_steps_per_s"), get(by.get((b, 2)), "env_steps_per_s")
-        L.append(f"| {b} | " + " | ".join(cells) + f" | {ratio(r2, r1, '.2f')} | {fmt(get(by.get((b, 1)), 'reset_ms'), '.2f')} |")
+        c1, c2 = get(by.get((b, 1)), "cpu_us_per_env_step"), get(by.get((b, 2)), "cpu_us_per_env_step")
+        L.append(f"| {b} | " + " | ".join(cells) + f" | {ratio(r2, r1, '.2f')} | {fmt(c1 / c2 if c1 and c2 else None, '.2f')} "
+                 f"| {fmt(get(by.get((b, 1)), 'reset_ms'), '.2f')} |")
     L += ["", "Latent-action env steps/s and EDP chunks/s: not measured yet (the latent-action envs do not exist yet)."]
 
     # Targets.
@@ -220,11 +234,18 @@ def report(meta, single, pandagym, vector, plot_name):
     if big:
         L.append(f"| vector env ≥ 1.8× on 2 threads over 1 (B ≥ 8) | {min(big):.2f}× – {max(big):.2f}× | "
                  f"{'yes' if min(big) >= TARGET_THREAD_SCALING else ('partly' if max(big) >= TARGET_THREAD_SCALING else '**no**')} |")
+    cpu = [(get(by.get((b, 1)), "cpu_us_per_env_step"), get(by.get((b, 2)), "cpu_us_per_env_step"))
+           for b in m["args"]["batch_sizes"] if b >= 8]
+    cpu = [c1 / c2 for c1, c2 in cpu if c1 and c2]
+    if cpu:
+        L.append(f"| (load-independent) CPU work per env step, T=1 / T=2 (B ≥ 8; 1.00 = no threading overhead) "
+                 f"| {min(cpu):.2f} – {max(cpu):.2f} | – |")
     shares = [get(v, "python_share") for v in vector if get(v, "python_share") is not None]
     if shares:
         L.append(f"| Python share of a vector step < 10 % | {100 * min(shares):.1f} % – {100 * max(shares):.1f} % | "
                  f"{'yes' if max(shares) < TARGET_PYTHON_SHARE else '**no**'} |")
-    L += ["", f"![throughput]({plot_name})", ""]
+    L += ["", f"![throughput]({plot_name})", "",
+          "Where a single-env step's time goes (perf, `bash benches/profile.sh`): [profile.md](profile.md).", ""]
     return "\n".join(L)
 
 
@@ -279,8 +300,82 @@ def plot(meta, single, pandagym, vector, path):
     return True
 
 
+README_BEGIN = "<!-- suite:begin (written by benches/suite.py --update-readme) -->"
+README_END = "<!-- suite:end -->"
+
+
+def readme_block(meta, single, pandagym, vector, plot_rel):
+    """The README's figures, from one suite run."""
+    load0, load1 = meta["load_start"], meta["load_end"]
+    busy = load0 and max(load0[0], (load1 or [0])[0]) > 0.7
+    L = [README_BEGIN, "",
+         f"`benches/suite.py`, {meta['date'][:10]}, git {meta['git']}: {meta['cpu_model']}, {meta['nproc']} CPUs; "
+         f"load average {load0} at start, {load1} at end"
+         + (" (**busy machine**: other engineers' builds and training shared the 2 cores, so absolute figures are low "
+            "and thread scaling is understated; ratios are from the same run)" if busy else " (quiet machine)") + ".", "",
+         "| single env, one core (uniform random actions) | equigym steps/s | peer steps/s | ratio |",
+         "|---|---:|---:|---:|"]
+    for r in single:
+        e, s_, p = get(r["equigym"], "steps_per_s"), get(r["robosuite"], "steps_per_s"), get(r["robosuite"], "physics_only_steps_per_s")
+        L.append(f"| {r['id']} vs robosuite {r['task']} | {fmt(e)} | {fmt(s_)} | **{ratio(e, s_)}** |")
+        if r["id"] == "EquiLift-v0":
+            L.append(f"| {r['id']} vs robosuite's physics only (bare `mj_step`, Lift model) | {fmt(e)} | {fmt(p)} | **{ratio(e, p)}** |")
+    lift = next((r for r in single if r["id"] == "EquiLift-v0"), None)
+    if lift and get(pandagym, "steps_per_s"):
+        e = get(lift["equigym"], "steps_per_s")
+        L.append(f"| EquiLift-v0 vs panda-gym PandaPickAndPlace-v3 | {fmt(e)} | {fmt(get(pandagym, 'steps_per_s'))} "
+                 f"| **{ratio(e, get(pandagym, 'steps_per_s'))}** |")
+    resets = [f"{fmt(get(r['equigym'], 'reset_ms'), '.3f')} ms" for r in single]
+    rs = [get(r["robosuite"], "reset_ms_hard") for r in single if get(r["robosuite"], "reset_ms_hard")]
+    L += ["", f"Reset: equigym {' / '.join(resets)} (" + ", ".join(r["id"] for r in single) + ")"
+          + (f"; robosuite {min(rs):.0f}-{max(rs):.0f} ms (default hard reset)" if rs else "")
+          + (f"; panda-gym {get(pandagym, 'reset_ms'):.2f} ms" if get(pandagym, "reset_ms") else "") + "."]
+    by = {(v["B"], v["threads"]): v for v in vector}
+    rows = []
+    for b in meta["args"]["batch_sizes"]:
+        v1, v2 = by.get((b, 1)), by.get((b, 2))
+        r1, r2 = get(v1, "env_steps_per_s"), get(v2, "env_steps_per_s")
+        c1, c2 = get(v1, "cpu_us_per_env_step"), get(v2, "cpu_us_per_env_step")
+        sh = [x for x in (get(v1, "python_share"), get(v2, "python_share")) if x is not None]
+        rows.append(f"| {b} | {fmt(r1)} | {fmt(r2)} | {ratio(r2, r1, '.2f')} | {fmt(c1 / c2 if c1 and c2 else None, '.2f')} "
+                    f"| {fmt(100 * max(sh) if sh else None, '.1f')} % |")
+    L += ["", f"| vector env ({meta['args']['vector_task']}), B | env steps/s, 1 thread | 2 threads | 2 / 1 "
+              "| CPU work 1 / 2 threads | Python share of a step |", "|---:|---:|---:|---:|---:|---:|"] + rows
+    L += ["", f"![performance suite]({plot_rel})", "", README_END]
+    return "\n".join(L)
+
+
+def update_readme(block, path=None):
+    path = path or HERE.parent / "README.md"
+    text = path.read_text()
+    if README_BEGIN not in text or README_END not in text:
+        log(f"{path} has no suite markers; README not updated")
+        return
+    head, rest = text.split(README_BEGIN, 1)
+    _, tail = rest.split(README_END, 1)
+    path.write_text(head + block + tail)
+    log(f"updated {path}")
+
+
+def write_outputs(args, meta, single, pandagym, vector):
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    png = args.out.with_suffix(".png")
+    has_plot = plot(meta, single, pandagym, vector, png)
+    md = report(meta, single, pandagym, vector, png.name if has_plot else "(no plot: matplotlib missing)")
+    print(md)
+    args.out.write_text(md)
+    if args.update_readme:
+        rel = os.path.relpath(png, HERE.parent) if has_plot else "benches/results/suite.md"
+        update_readme(readme_block(meta, single, pandagym, vector, rel))
+    log(f"wrote {args.out}" + (f", {png}" if has_plot else ""))
+
+
 def main():
     args = parse_args()
+    if args.from_json:
+        data = json.loads(args.from_json.read_text())
+        write_outputs(args, data["meta"], data["single"], data["pandagym"], data["vector"])
+        return
     cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
     meta = {
         "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
@@ -335,14 +430,9 @@ def main():
     meta["load_end"] = peers.loadavg()
 
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    png = args.out.with_suffix(".png")
-    has_plot = plot(meta, single, pandagym, vector, png)
-    md = report(meta, single, pandagym, vector, png.name if has_plot else "(no plot: matplotlib missing)")
-    print(md)
-    args.out.write_text(md)
     args.out.with_suffix(".json").write_text(json.dumps(
         {"meta": meta, "single": single, "pandagym": pandagym, "vector": vector}, indent=1) + "\n")
-    log(f"wrote {args.out}, {args.out.with_suffix('.json')}" + (f", {png}" if has_plot else ""))
+    write_outputs(args, meta, single, pandagym, vector)
 
 
 if __name__ == "__main__":
