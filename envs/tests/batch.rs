@@ -50,7 +50,7 @@ fn batch_equals_single_environments_bitwise_for_any_thread_count_with_next_step_
     // The reference: B single environments, reset by hand the way NextStep auto-reset does.
     let mut singles: Vec<Env> = (0..B).map(|_| Env::new(config("lift", horizon)).unwrap()).collect();
     let mut streams: Vec<EpisodeRng> = seeds.iter().map(|&s| episode_seed_stream(s)).collect();
-    let mut ended = vec![false; B];
+    let mut ended = [false; B];
     let mut expected = Vec::new();
     let mut row = Vec::new();
     for (env, &s) in singles.iter_mut().zip(&seeds) {
