@@ -19,6 +19,8 @@ use pyo3::exceptions::{PyFileNotFoundError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
 
+mod vector;
+
 create_exception!(_core, EquigymError, PyValueError, "Invalid input to an equigym environment.");
 create_exception!(_core, UrdfError, PyValueError, "The robot description (URDF) cannot be used.");
 create_exception!(_core, InvalidStateError, PyValueError, "A saved state cannot be restored.");
@@ -267,6 +269,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<latent::LatentEnv>()?;
     m.add("PolicyError", py.get_type::<PolicyError>())?;
     m.add_function(wrap_pyfunction!(symmetry::measure_symmetry_breaking, m)?)?;
+    m.add_class::<vector::VecEnv>()?;
     m.add("EquigymError", py.get_type::<EquigymError>())?;
     m.add("UrdfError", py.get_type::<UrdfError>())?;
     m.add("InvalidStateError", py.get_type::<InvalidStateError>())?;

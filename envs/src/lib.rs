@@ -17,9 +17,10 @@
 //! ```
 //!
 //! Modules by domain: [`robot`] (URDF, kinematics, IK), [`scene`] (physics world and arm
-//! controller), [`tasks`] (Lift, ...), [`env`] (reset/step/state), [`experts`] (scripted
+//! controller), [`tasks`] (Lift, ...), [`env`] (reset/step/state), [`batch`] (B environments on a thread pool, auto-reset), [`experts`] (scripted
 //! demonstrators), [`render`] (CPU ray caster), [`layout`] (named observation slices).
 
+pub mod batch;
 pub mod env;
 pub mod error;
 pub mod experts;
@@ -31,6 +32,7 @@ pub mod robot;
 pub mod scene;
 pub mod tasks;
 
+pub use batch::{AutoresetMode, BatchEnv, BatchMember, MemberStep};
 pub use env::{Env, EnvConfig, StepResult, ACTION_DIM};
 pub use error::{EnvError, Result};
 pub use layout::{Field, FieldKind, Layout};

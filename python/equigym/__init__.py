@@ -5,6 +5,7 @@ Importing the package registers the gymnasium ids (gymnasium 1.x has no plugin e
 >>> import gymnasium, equigym
 >>> env = gymnasium.make("EquiLift-v0", render_mode="rgb_array")
 >>> obs, info = env.reset(seed=0)
+>>> envs = gymnasium.make_vec("EquiLift-v0", num_envs=16)   # B envs stepped in Rust
 """
 
 from equigym._core import (
@@ -22,6 +23,7 @@ from equigym.latent import LATENT_ENV_IDS, EquiLatentEnv, register_latent_envs
 from equigym.rendering import save_gif
 from equigym.symmetry import Symmetry, measure_breaking
 from equigym.wrappers import SymmetryWrapper
+from equigym.vector import EquiVectorEnv
 
 register_envs()
 register_latent_envs()
@@ -34,6 +36,7 @@ __all__ = [
     "PolicyError",
     "ENV_IDS",
     "EquiEnv",
+    "EquiVectorEnv",
     "EquigymError",
     "Expert",
     "InvalidStateError",

@@ -183,6 +183,8 @@ def register_envs() -> None:
         gymnasium.register(
             id=env_id,
             entry_point="equigym.envs:EquiEnv",
+            # gymnasium.make_vec(id, num_envs=B): B environments stepped in Rust (equigym.vector).
+            vector_entry_point="equigym.vector:EquiVectorEnv",
             kwargs={"task": task},
             max_episode_steps=400,
         )

@@ -1,0 +1,441 @@
+#!/usr/bin/env python3
+"""The performance suite: equigym and its peers measured side by side in one run.
+
+    .venv/bin/python benches/suite.py            # full run (~5 min on 2 cores), writes benches/results/suite.*
+    .venv/bin/python benches/suite.py --quick    # smoke test (~1 min)
+    bash benches/setup_peers.sh                  # once: the robosuite and panda-gym venvs
+
+Measures, taking turns (never two measurements at once):
+
+1. single environment, one core (every process pinned to --cpu): control steps/s and reset time
+   of each equigym task vs robosuite on the same task (plus robosuite's physics-only MuJoCo rate:
+   its recorded controls replayed through bare mj_step) and panda-gym's PandaPickAndPlace-v3;
+2. the native vector env (gymnasium.make_vec) for B in --batch-sizes on 1 and 2 threads
+   (pinned to the first T CPUs): env steps/s, time per batched step, and the share of each step
+   spent in Python (wall time of EquiVectorEnv.step minus the time inside the Rust batch step,
+   which the core measures with the GIL released); vector reset time;
+3. [latent-action env steps/s and EDP chunks/s: not yet, the latent envs do not exist yet].
+
+Writes Markdown + JSON (--out, default benches/results/suite.md) and a PNG plot next to them,
+with the machine, the load average before/after every part, and the ratios of the targets.
+"""
+import os
+
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import argparse
+import datetime
+import json
+import shlex
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+import peers  # noqa: E402  (shared helpers: pinning, load, versions, the equigym and robosuite timers)
+
+PEERS_DIR = peers.PEERS_DIR
+PANDAGYM_WORKER = HERE / "_pandagym_worker.py"
+TASKS = {"EquiLift-v0": "lift", "EquiStack-v0": "stack", "EquiSquare-v0": "square"}
+# Targets of the performance issue (ratios measured in the same run).
+TARGET_VS_ROBOSUITE = 20.0
+TARGET_VS_PHYSICS_ONLY = 3.0
+TARGET_THREAD_SCALING = 1.8
+TARGET_PYTHON_SHARE = 0.10
+
+
+def parse_args():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--equigym-ids", nargs="+", default=list(TASKS))
+    ap.add_argument("--steps", type=int, default=2000, help="single-env steps per repetition")
+    ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--warmup", type=int, default=200)
+    ap.add_argument("--resets", type=int, default=10)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--cpu", type=int, default=0)
+    ap.add_argument("--batch-sizes", default="1,2,4,8,16,32,64")
+    ap.add_argument("--threads", default="1,2")
+    ap.add_argument("--vector-task", default="EquiLift-v0")
+    ap.add_argument("--vector-env-steps", type=int, default=4000,
+                    help="environment steps per repetition of each (B, T) (at least 20 batch steps)")
+    ap.add_argument("--robosuite-python", type=Path, default=PEERS_DIR / "venv_robosuite" / "bin" / "python")
+    ap.add_argument("--pandagym-python", type=Path, default=PEERS_DIR / "venv_pandagym" / "bin" / "python")
+    ap.add_argument("--no-peers", action="store_true", help="equigym only")
+    ap.add_argument("--quick", action="store_true", help="smoke test: fewer steps, B in 1,8,64")
+    ap.add_argument("--timeout", type=float, default=1800)
+    ap.add_argument("--out", type=Path, default=HERE / "results" / "suite.md")
+    ap.add_argument("--update-readme", action="store_true",
+                    help="also rewrite the figures between the suite markers in README.md")
+    ap.add_argument("--from-json", type=Path,
+                    help="measure nothing: rewrite the report, plot (and README) from a suite JSON file")
+    args = ap.parse_args()
+    if args.quick:
+        args.steps, args.reps, args.resets, args.warmup = 300, 1, 3, 50
+        args.vector_env_steps = 640
+        args.batch_sizes = "1,8,64"
+    args.batch_sizes = [int(b) for b in str(args.batch_sizes).split(",")]
+    args.threads = [int(t) for t in str(args.threads).split(",")]
+    args.equigym_ids = [i for s in args.equigym_ids for i in s.split(",") if i]
+    return args
+
+
+def log(msg):
+    print(msg, file=sys.stderr, flush=True)
+
+
+# ---------------------------------------------------------------- peers (subprocesses)
+
+def bench_pandagym(args):
+    cmd = [str(args.pandagym_python), str(PANDAGYM_WORKER), "--steps", str(args.steps), "--reps", str(args.reps),
+           "--warmup", str(args.warmup), "--resets", str(args.resets), "--seed", str(args.seed), "--cpu", str(args.cpu)]
+    load = peers.loadavg()
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
+    for line in reversed(p.stdout.splitlines()):
+        if line.startswith("{"):
+            res = json.loads(line)
+            res["load_before"] = load
+            return res
+    raise RuntimeError(f"worker rc={p.returncode}: {(p.stderr or p.stdout)[-800:]}")
+
+
+# ---------------------------------------------------------------- vector env (in process)
+
+def bench_vector(env_id, b, t, args):
+    import gymnasium
+
+    cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    res = {"B": b, "threads": t, "load_before": peers.loadavg(), "affinity": cpus}
+    t0 = time.perf_counter()
+    envs = gymnasium.make_vec(env_id, num_envs=b, threads=t)  # the pool starts here, on the pinned CPUs
+    res["make_s"] = time.perf_counter() - t0
+    core = envs.unwrapped.core
+    n = max(20, args.vector_env_steps // b)
+    space = envs.action_space
+    space.seed(args.seed)
+    rs = []
+    for i in range(max(3, args.resets // 2)):
+        r0 = time.perf_counter()
+        envs.reset(seed=args.seed + i)
+        rs.append(time.perf_counter() - r0)
+    res["reset_ms"] = 1e3 * statistics.median(rs)
+    for a in [space.sample() for _ in range(max(5, n // 10))]:
+        envs.step(a)
+    rates, py_share, step_us, rust_us, cpu_us = [], [], [], [], []
+    for _ in range(args.reps):
+        actions = [space.sample() for _ in range(n)]
+        core.stepping_seconds = 0.0
+        c0 = time.process_time()  # CPU time of every thread of the process, load-independent
+        t0 = time.perf_counter()
+        for a in actions:
+            envs.step(a)
+        wall = time.perf_counter() - t0
+        cpu_us.append(1e6 * (time.process_time() - c0) / (n * b))
+        rust = core.stepping_seconds
+        rates.append(n * b / wall)
+        step_us.append(1e6 * wall / n)
+        rust_us.append(1e6 * rust / n)
+        py_share.append((wall - rust) / wall)
+    k = rates.index(statistics.median(rates))  # report the median run's numbers together
+    res.update(batch_steps=n, env_steps_per_s=rates[k], env_steps_per_s_runs=rates, step_us=step_us[k],
+               cpu_us_per_env_step=cpu_us[k],
+               rust_step_us=rust_us[k], python_us=step_us[k] - rust_us[k], python_share=py_share[k])
+    envs.close()
+    del envs, core
+    return res
+
+
+# ---------------------------------------------------------------- report
+
+def fmt(x, spec=",.0f"):
+    return "–" if x is None else format(x, spec)
+
+
+def get(res, key):
+    return None if not res or "error" in res else res.get(key)
+
+
+def cpus_used(v):
+    """Average number of CPUs the process kept busy during the timed steps (CPU time / wall time)."""
+    c, w, b = get(v, "cpu_us_per_env_step"), get(v, "step_us"), get(v, "B")
+    return c * b / w if c and w and b else None
+
+
+def ratio(a, b, spec=".1f"):
+    return f"{a / b:{spec}}×" if a and b else "–"
+
+
+def report(meta, single, pandagym, vector, plot_name):
+    m = meta
+    L = [
+        "# equigym performance suite", "",
+        f"{m['date']} · `{m['command']}` · git {m['git']}", "",
+        f"- machine: {m['cpu_model']}, {m['nproc']} logical CPUs, {m['platform']}",
+        f"- load average (1/5/15 min): {m['load_start']} at start, {m['load_end']} at end; before each part: "
+        + "; ".join(f"{k} {v}" for k, v in m["load_parts"].items()),
+        f"- equigym side: {', '.join(f'{k} {v}' for k, v in m['versions'].items())}",
+        f"- robosuite side: {', '.join(f'{k} {v}' for k, v in (m.get('robosuite_versions') or {}).items()) or '(not run)'}",
+        f"- panda-gym side: {', '.join(f'{k} {v}' for k, v in (get(pandagym, 'versions') or {}).items()) or '(not run)'}",
+        "- method: seeded uniform-random actions sampled before timing, warm-up, median of "
+        f"{m['args']['reps']} repetitions; single-env figures pinned to CPU {m['args']['cpu']} on both sides; "
+        "equigym unwrapped, robosuite `ignore_done=True`, panda-gym unwrapped. Physics-only = robosuite's recorded "
+        "controls replayed through bare `mujoco.mj_step` (25 substeps per control step).",
+        "",
+        "## Single environment, one core", "",
+        "| task | equigym steps/s | robosuite steps/s | ratio | robosuite physics-only steps/s | ratio | equigym reset ms | robosuite reset ms (hard / soft) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in single:
+        e, s, p = get(r["equigym"], "steps_per_s"), get(r["robosuite"], "steps_per_s"), get(r["robosuite"], "physics_only_steps_per_s")
+        L.append(f"| {r['id']} / {r['task']} | {fmt(e)} | {fmt(s)} | **{ratio(e, s)}** | {fmt(p)} | **{ratio(e, p)}** "
+                 f"| {fmt(get(r['equigym'], 'reset_ms'), '.3f')} | {fmt(get(r['robosuite'], 'reset_ms_hard'), '.0f')} / "
+                 f"{fmt(get(r['robosuite'], 'reset_ms_soft'), '.1f')} |")
+    lift = next((r for r in single if r["id"] == "EquiLift-v0"), None)
+    pg = get(pandagym, "steps_per_s")
+    if pandagym is not None:
+        le = get(lift["equigym"], "steps_per_s") if lift else None
+        L += ["", "| peer | task | steps/s | reset ms | equigym Lift / peer |", "|---|---|---:|---:|---:|",
+              f"| panda-gym (PyBullet) | PandaPickAndPlace-v3 (20 substeps at 2 ms, 25 Hz control) | {fmt(pg)} "
+              f"| {fmt(get(pandagym, 'reset_ms'), '.2f')} | **{ratio(le, pg)}** |"]
+        if "error" in pandagym:
+            L.append(f"\npanda-gym error: {pandagym['error']}")
+    L += ["", f"## Vector env ({m['args']['vector_task']}, `gymnasium.make_vec`, auto-reset on)", "",
+          "Env steps/s of the whole batch; *Python share* = (wall time of `EquiVectorEnv.step` − time inside the "
+          "Rust batched step) / wall time. T threads run pinned to the first T CPUs. *CPUs used* = process CPU "
+          "time (all threads) / wall time during the timed steps: 2.0 would mean both cores were ours; on a machine "
+          "busy with other work it shows how much CPU the run actually got, which bounds the thread scaling.", "",
+          "| B | " + " | ".join(f"T={t} env steps/s | T={t} µs/step | T={t} Python share | T={t} CPUs used"
+                               for t in m["args"]["threads"])
+          + " | T=2 / T=1 | reset ms (T=1) |",
+          "|---:|" + "---:|---:|---:|---:|" * len(m["args"]["threads"]) + "---:|---:|"]
+    by = {(v["B"], v["threads"]): v for v in vector}
+    for b in m["args"]["batch_sizes"]:
+        cells = []
+        for t in m["args"]["threads"]:
+            v = by.get((b, t))
+            cells += [fmt(get(v, "env_steps_per_s")), fmt(get(v, "step_us"), ",.0f"),
+                      fmt(100 * get(v, "python_share") if get(v, "python_share") is not None else None, ".1f") + " %",
+                      fmt(cpus_used(v), ".2f")]
+        r1, r2 = get(by.get((b, 1)), "env_steps_per_s"), get(by.get((b, 2)), "env_steps_per_s")
+        L.append(f"| {b} | " + " | ".join(cells) + f" | {ratio(r2, r1, '.2f')} "
+                 f"| {fmt(get(by.get((b, 1)), 'reset_ms'), '.2f')} |")
+    L += ["", "Latent-action env steps/s and EDP chunks/s: not measured yet (the latent-action envs do not exist yet)."]
+
+    # Targets.
+    L += ["", "## Targets (ratios from this run)", "", "| target | measured | met |", "|---|---:|:---:|"]
+    if lift:
+        e, s, p = get(lift["equigym"], "steps_per_s"), get(lift["robosuite"], "steps_per_s"), get(lift["robosuite"], "physics_only_steps_per_s")
+        for name, a, bb, tgt in (("Lift single env ≥ 20× robosuite Lift", e, s, TARGET_VS_ROBOSUITE),
+                                 ("Lift single env ≥ 3× robosuite's physics-only MuJoCo rate", e, p, TARGET_VS_PHYSICS_ONLY)):
+            met = "–" if not (a and bb) else ("yes" if a / bb >= tgt else "**no**")
+            L.append(f"| {name} | {ratio(a, bb)} | {met} |")
+    scal = [(b, get(by.get((b, 2)), "env_steps_per_s"), get(by.get((b, 1)), "env_steps_per_s")) for b in m["args"]["batch_sizes"]]
+    scal = [(b, r2 / r1) for b, r2, r1 in scal if r2 and r1]
+    big = [s for b, s in scal if b >= 8]
+    if big:
+        L.append(f"| vector env ≥ 1.8× on 2 threads over 1 (B ≥ 8) | {min(big):.2f}× – {max(big):.2f}× | "
+                 f"{'yes' if min(big) >= TARGET_THREAD_SCALING else ('partly' if max(big) >= TARGET_THREAD_SCALING else '**no**')} |")
+    got = [cpus_used(by.get((b, 2))) for b in m["args"]["batch_sizes"] if b >= 8]
+    got = [g for g in got if g]
+    if got:
+        L.append(f"| (context) CPUs the 2-thread runs actually got (B ≥ 8; 2.00 = both cores free) "
+                 f"| {min(got):.2f} – {max(got):.2f} | – |")
+    shares = [get(v, "python_share") for v in vector if get(v, "python_share") is not None]
+    if shares:
+        L.append(f"| Python share of a vector step < 10 % | {100 * min(shares):.1f} % – {100 * max(shares):.1f} % | "
+                 f"{'yes' if max(shares) < TARGET_PYTHON_SHARE else '**no**'} |")
+    L += ["", f"![throughput]({plot_name})", "",
+          "Where a single-env step's time goes (perf, `bash benches/profile.sh`): [profile.md](profile.md).", ""]
+    return "\n".join(L)
+
+
+def plot(meta, single, pandagym, vector, path):
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        log("matplotlib missing: no plot (pip install matplotlib)")
+        return False
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.6))
+    labels, values, colors = [], [], []
+    for r in single:
+        short = r["id"].replace("Equi", "").replace("-v0", "")
+        for name, v, c in ((f"equigym\n{short}", get(r["equigym"], "steps_per_s"), "tab:blue"),
+                           (f"robosuite\n{short}", get(r["robosuite"], "steps_per_s"), "tab:red"),
+                           (f"MuJoCo\nphysics-only\n{short}", get(r["robosuite"], "physics_only_steps_per_s"), "tab:orange")):
+            if v:
+                labels.append(name)
+                values.append(v)
+                colors.append(c)
+    if get(pandagym, "steps_per_s"):
+        labels.append("panda-gym\nPickAndPlace")
+        values.append(get(pandagym, "steps_per_s"))
+        colors.append("tab:green")
+    ax1.bar(range(len(values)), values, color=colors)
+    ax1.set_xticks(range(len(values)), labels, fontsize=6.5)
+    ax1.set_yscale("log")
+    ax1.set_ylabel("control steps/s (one core)")
+    ax1.set_title("Single environment, one core")
+    for i, v in enumerate(values):
+        ax1.text(i, v * 1.08, f"{v:,.0f}", ha="center", fontsize=6.5)
+    for t in meta["args"]["threads"]:
+        pts = sorted((v["B"], v["env_steps_per_s"]) for v in vector if v.get("threads") == t and "error" not in v)
+        if pts:
+            ax2.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=f"equigym vector env, {t} thread(s)")
+    lift = next((r for r in single if r["id"] == "EquiLift-v0"), None)
+    for v, name, style in ((get(lift["robosuite"], "steps_per_s") if lift else None, "robosuite Lift (1 env)", "r--"),
+                           (get(pandagym, "steps_per_s"), "panda-gym PickAndPlace (1 env)", "g--")):
+        if v:
+            ax2.axhline(v, color=style[0], ls="--", label=name)
+    ax2.set_xscale("log", base=2)
+    ax2.set_yscale("log")
+    ax2.set_xlabel("B (environments per batch)")
+    ax2.set_ylabel("environment steps/s")
+    ax2.set_title(f"Vector env ({meta['args']['vector_task']}, auto-reset)")
+    ax2.legend(fontsize=7, loc="center right")
+    fig.suptitle(f"{meta['cpu_model']} ({meta['nproc']} CPUs), load {meta['load_start']} → {meta['load_end']}", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    return True
+
+
+README_BEGIN = "<!-- suite:begin (written by benches/suite.py --update-readme) -->"
+README_END = "<!-- suite:end -->"
+
+
+def readme_block(meta, single, pandagym, vector, plot_rel):
+    """The README's figures, from one suite run."""
+    load0, load1 = meta["load_start"], meta["load_end"]
+    busy = load0 and max(load0[0], (load1 or [0])[0]) > 0.7
+    L = [README_BEGIN, "",
+         f"`benches/suite.py`, {meta['date'][:10]}, git {meta['git']}: {meta['cpu_model']}, {meta['nproc']} CPUs; "
+         f"load average {load0} at start, {load1} at end"
+         + (" (**busy machine**: other engineers' builds and training shared the 2 cores, so absolute figures are low "
+            "and thread scaling is understated; ratios are from the same run)" if busy else " (quiet machine)") + ".", "",
+         "| single env, one core (uniform random actions) | equigym steps/s | peer steps/s | ratio |",
+         "|---|---:|---:|---:|"]
+    for r in single:
+        e, s_, p = get(r["equigym"], "steps_per_s"), get(r["robosuite"], "steps_per_s"), get(r["robosuite"], "physics_only_steps_per_s")
+        L.append(f"| {r['id']} vs robosuite {r['task']} | {fmt(e)} | {fmt(s_)} | **{ratio(e, s_)}** |")
+        if r["id"] == "EquiLift-v0":
+            L.append(f"| {r['id']} vs robosuite's physics only (bare `mj_step`, Lift model) | {fmt(e)} | {fmt(p)} | **{ratio(e, p)}** |")
+    lift = next((r for r in single if r["id"] == "EquiLift-v0"), None)
+    if lift and get(pandagym, "steps_per_s"):
+        e = get(lift["equigym"], "steps_per_s")
+        L.append(f"| EquiLift-v0 vs panda-gym PandaPickAndPlace-v3 | {fmt(e)} | {fmt(get(pandagym, 'steps_per_s'))} "
+                 f"| **{ratio(e, get(pandagym, 'steps_per_s'))}** |")
+    resets = [f"{fmt(get(r['equigym'], 'reset_ms'), '.3f')} ms" for r in single]
+    rs = [get(r["robosuite"], "reset_ms_hard") for r in single if get(r["robosuite"], "reset_ms_hard")]
+    L += ["", f"Reset: equigym {' / '.join(resets)} (" + ", ".join(r["id"] for r in single) + ")"
+          + (f"; robosuite {min(rs):.0f}-{max(rs):.0f} ms (default hard reset)" if rs else "")
+          + (f"; panda-gym {get(pandagym, 'reset_ms'):.2f} ms" if get(pandagym, "reset_ms") else "") + "."]
+    by = {(v["B"], v["threads"]): v for v in vector}
+    rows = []
+    for b in meta["args"]["batch_sizes"]:
+        v1, v2 = by.get((b, 1)), by.get((b, 2))
+        r1, r2 = get(v1, "env_steps_per_s"), get(v2, "env_steps_per_s")
+        sh = [x for x in (get(v1, "python_share"), get(v2, "python_share")) if x is not None]
+        rows.append(f"| {b} | {fmt(r1)} | {fmt(r2)} | {ratio(r2, r1, '.2f')} | {fmt(cpus_used(v1), '.2f')} / "
+                    f"{fmt(cpus_used(v2), '.2f')} | {fmt(100 * max(sh) if sh else None, '.1f')} % |")
+    L += ["", f"| vector env ({meta['args']['vector_task']}), B | env steps/s, 1 thread | 2 threads | 2 / 1 "
+              "| CPUs the run got, 1 / 2 threads | Python share of a step |", "|---:|---:|---:|---:|---:|---:|"] + rows
+    L += ["", f"![performance suite]({plot_rel})", "", README_END]
+    return "\n".join(L)
+
+
+def update_readme(block, path=None):
+    path = path or HERE.parent / "README.md"
+    text = path.read_text()
+    if README_BEGIN not in text or README_END not in text:
+        log(f"{path} has no suite markers; README not updated")
+        return
+    head, rest = text.split(README_BEGIN, 1)
+    _, tail = rest.split(README_END, 1)
+    path.write_text(head + block + tail)
+    log(f"updated {path}")
+
+
+def write_outputs(args, meta, single, pandagym, vector):
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    png = args.out.with_suffix(".png")
+    has_plot = plot(meta, single, pandagym, vector, png)
+    md = report(meta, single, pandagym, vector, png.name if has_plot else "(no plot: matplotlib missing)")
+    print(md)
+    args.out.write_text(md)
+    if args.update_readme:
+        rel = os.path.relpath(png, HERE.parent) if has_plot else "benches/results/suite.md"
+        update_readme(readme_block(meta, single, pandagym, vector, rel))
+    log(f"wrote {args.out}" + (f", {png}" if has_plot else ""))
+
+
+def main():
+    args = parse_args()
+    if args.from_json:
+        data = json.loads(args.from_json.read_text())
+        write_outputs(args, data["meta"], data["single"], data["pandagym"], data["vector"])
+        return
+    cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    meta = {
+        "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+        "command": shlex.join([Path(sys.executable).name, *sys.argv]),
+        "cpu_model": peers.cpu_model(), "nproc": os.cpu_count(), "platform": peers.platform.platform(),
+        "load_start": peers.loadavg(), "versions": peers.versions(), "git": peers.git_rev(),
+        "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+        "load_parts": {},
+    }
+    if meta["load_start"] and meta["load_start"][0] > 0.7:
+        log(f"warning: load average {meta['load_start']}: the machine is busy, expect noisy numbers")
+
+    # 1. single environment, one core
+    peers.pin(args.cpu)
+    run_rs = not args.no_peers and args.robosuite_python.exists()
+    run_pg = not args.no_peers and args.pandagym_python.exists()
+    for name, ok, path in (("robosuite", run_rs, args.robosuite_python), ("panda-gym", run_pg, args.pandagym_python)):
+        if not ok and not args.no_peers:
+            log(f"{name} venv not found ({path}); run bash benches/setup_peers.sh. Skipping {name}.")
+    meta["load_parts"]["single"] = peers.loadavg()
+    single = []
+    for env_id in args.equigym_ids:
+        task = peers.ROBOSUITE_TASKS.get(env_id)
+        log(f"[{env_id}] equigym single env ...")
+        row = {"id": env_id, "task": task, "equigym": peers.guarded(peers.bench_equigym, env_id, args), "robosuite": None}
+        if run_rs and task:
+            log(f"[{env_id}] robosuite {task} ...")
+            row["robosuite"] = peers.guarded(peers.bench_robosuite, task, args)
+            if not meta.get("robosuite_versions") and "versions" in row["robosuite"]:
+                meta["robosuite_versions"] = row["robosuite"]["versions"]
+        single.append(row)
+    pandagym = None
+    if run_pg:
+        log("[panda-gym] PandaPickAndPlace-v3 ...")
+        pandagym = peers.guarded(bench_pandagym, args)
+
+    # 2. vector env, T threads pinned to the first T CPUs
+    meta["load_parts"]["vector"] = peers.loadavg()
+    vector = []
+    for t in args.threads:
+        use = set(cpus[:t]) if len(cpus) >= t else set(cpus)
+        try:
+            os.sched_setaffinity(0, use)
+        except (AttributeError, OSError):
+            pass
+        for b in args.batch_sizes:
+            log(f"[vector] B={b} T={t} ...")
+            v = peers.guarded(bench_vector, args.vector_task, b, t, args)
+            v.setdefault("B", b)
+            v.setdefault("threads", t)
+            vector.append(v)
+    meta["load_end"] = peers.loadavg()
+
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.with_suffix(".json").write_text(json.dumps(
+        {"meta": meta, "single": single, "pandagym": pandagym, "vector": vector}, indent=1) + "\n")
+    write_outputs(args, meta, single, pandagym, vector)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,232 @@
+//! `equigym._core.VecEnv`: B environments stepped in Rust per call (see `equigym_envs::batch`).
+//!
+//! One call crosses the Python boundary per batch: actions come in as one (B, action_dim)
+//! float64 array, observations go out as one (B, obs_dim) float32 array, and the GIL is
+//! released while the environments step on the batch's thread pool.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use equigym_envs::{AutoresetMode, BatchEnv};
+use numpy::ndarray::Array2;
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+
+use crate::{layout_list, to_py, Env, EquigymError};
+
+/// What `step` returns: (obs, rewards, terminated, truncated, success, reset, final_obs).
+type StepOut<'py> = (
+    Bound<'py, PyArray2<f32>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<bool>>,
+    Bound<'py, PyArray1<bool>>,
+    Bound<'py, PyArray1<bool>>,
+    Bound<'py, PyArray1<bool>>,
+    Option<Bound<'py, PyArray2<f32>>>,
+);
+
+/// B environments of one task behind a single batched `reset` / `step`
+/// (see `equigym.vector.EquiVectorEnv` for the gymnasium interface built on it).
+#[pyclass(module = "equigym._core", name = "VecEnv")]
+pub struct VecEnv {
+    inner: BatchEnv,
+    /// One environment's action bounds, observation layout, ... (never stepped).
+    probe: Env,
+    /// Seconds spent inside the Rust batched step (GIL released), for overhead measurements.
+    stepping: f64,
+}
+
+fn obs_array(batch: &BatchEnv, rows: impl Fn(usize) -> Option<Vec<f64>>) -> Array2<f32> {
+    let (n, d) = (batch.num_envs(), batch.observation_dim());
+    let mut out = Array2::<f32>::zeros((n, d));
+    for (i, mut row) in out.rows_mut().into_iter().enumerate() {
+        if let Some(values) = rows(i) {
+            for (o, x) in row.iter_mut().zip(values) {
+                *o = x as f32;
+            }
+        }
+    }
+    out
+}
+
+#[pymethods]
+impl VecEnv {
+    #[new]
+    #[pyo3(signature = (task, num_envs, *, threads=0, autoreset_mode="next_step", reward="sparse", urdf=None, joint_limits=true, init_joint_noise=0.02, horizon=None, physics=None, ranges=None, variant=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        task: &str,
+        num_envs: usize,
+        threads: usize,
+        autoreset_mode: &str,
+        reward: &str,
+        urdf: Option<PathBuf>,
+        joint_limits: bool,
+        init_joint_noise: f64,
+        horizon: Option<usize>,
+        physics: Option<&Bound<'_, PyDict>>,
+        ranges: Option<&Bound<'_, PyDict>>,
+        variant: Option<String>,
+    ) -> PyResult<Self> {
+        if num_envs == 0 {
+            return Err(EquigymError::new_err("num_envs must be at least 1"));
+        }
+        let mode = autoreset_mode.parse::<AutoresetMode>().map_err(to_py)?;
+        let make = || {
+            Env::new(task, reward, urdf.clone(), joint_limits, init_joint_noise, horizon, physics, ranges, variant.clone())
+        };
+        let probe = make()?;
+        let envs = (0..num_envs).map(|_| make().map(|e| e.inner)).collect::<PyResult<Vec<_>>>()?;
+        Ok(Self { inner: BatchEnv::new(envs, threads, mode).map_err(to_py)?, probe, stepping: 0.0 })
+    }
+
+    /// Reset the environments (all, or those where `mask` is true) with one seed each;
+    /// returns the observations, (B, obs_dim) float32.
+    #[pyo3(signature = (seeds, mask=None))]
+    fn reset<'py>(
+        &mut self,
+        py: Python<'py>,
+        seeds: Vec<u64>,
+        mask: Option<Vec<bool>>,
+    ) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let inner = &mut self.inner;
+        py.detach(|| match mask {
+            None => inner.reset(&seeds),
+            Some(mask) => inner.reset_masked(&seeds, &mask),
+        })
+        .map_err(to_py)?;
+        Ok(obs_array(&self.inner, |i| Some(self.inner.obs(i).to_vec())).into_pyarray(py))
+    }
+
+    /// Step all B environments with a (B, action_dim) float64 array:
+    /// (obs, rewards, terminated, truncated, success, reset, final_obs).
+    /// `reset[i]`: environment i was reset during this call (next_step: its action was ignored
+    /// and obs is its reset observation; same_step: its episode ended, obs is the reset
+    /// observation and `final_obs[i]` the last one of the ended episode). `final_obs` is None
+    /// in next_step mode or when nothing ended.
+    fn step<'py>(&mut self, py: Python<'py>, actions: PyReadonlyArray2<'py, f64>) -> PyResult<StepOut<'py>> {
+        let shape = actions.shape();
+        let (n, dim) = (self.inner.num_envs(), self.inner.action_dim());
+        if shape != [n, dim] {
+            return Err(EquigymError::new_err(format!("actions must have shape ({n}, {dim}), got {shape:?}")));
+        }
+        let flat = match actions.as_slice() {
+            Ok(s) => s.to_vec(),
+            Err(_) => actions.as_array().iter().copied().collect(),
+        };
+        let inner = &mut self.inner;
+        let (result, secs) = py.detach(|| {
+            let start = Instant::now();
+            let result = inner.step(&flat);
+            (result, start.elapsed().as_secs_f64())
+        });
+        self.stepping += secs;
+        result.map_err(to_py)?;
+        let b = &self.inner;
+        let obs = obs_array(b, |i| Some(b.obs(i).to_vec()));
+        let steps: Vec<_> = (0..n).map(|i| b.last_step(i)).collect();
+        let reset: Vec<bool> = (0..n).map(|i| b.was_reset(i)).collect();
+        let final_obs = (b.autoreset_mode() == AutoresetMode::SameStep && reset.iter().any(|r| *r))
+            .then(|| obs_array(b, |i| b.final_obs(i).map(<[f64]>::to_vec)).into_pyarray(py));
+        Ok((
+            obs.into_pyarray(py),
+            steps.iter().map(|s| s.reward).collect::<Vec<_>>().into_pyarray(py),
+            steps.iter().map(|s| s.terminated).collect::<Vec<_>>().into_pyarray(py),
+            steps.iter().map(|s| s.truncated).collect::<Vec<_>>().into_pyarray(py),
+            steps.iter().map(|s| s.success).collect::<Vec<_>>().into_pyarray(py),
+            reset.into_pyarray(py),
+            final_obs,
+        ))
+    }
+
+    /// Current observations, (B, obs_dim) float32.
+    fn observe<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
+        obs_array(&self.inner, |i| Some(self.inner.obs(i).to_vec())).into_pyarray(py)
+    }
+
+    /// The actions that hold every robot where it is, (B, 10) float64.
+    fn current_targets<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let flat: Vec<f64> = self.inner.envs().flat_map(|e| e.current_target()).collect();
+        let a = Array2::from_shape_vec((self.inner.num_envs(), 10), flat)
+            .map_err(|e| EquigymError::new_err(e.to_string()))?;
+        Ok(a.into_pyarray(py))
+    }
+
+    /// Seed of each environment's current episode (a single `Env.reset(seed)` reproduces it).
+    fn episode_seeds<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u64>> {
+        self.inner.episode_seeds().into_pyarray(py)
+    }
+
+    /// The full state of environment `i` (as `Env.get_state`).
+    fn get_state<'py>(&self, py: Python<'py>, i: usize) -> PyResult<Bound<'py, pyo3::types::PyBytes>> {
+        let env = self
+            .inner
+            .env(i)
+            .ok_or_else(|| EquigymError::new_err(format!("environment index {i} out of range")))?;
+        Ok(pyo3::types::PyBytes::new(py, &env.get_state().map_err(to_py)?))
+    }
+
+    /// Total seconds spent inside the Rust batched step since construction (or the last
+    /// assignment, e.g. `core.stepping_seconds = 0.0`); the rest of a step's time is Python.
+    #[getter]
+    fn stepping_seconds(&self) -> f64 {
+        self.stepping
+    }
+    #[setter]
+    fn set_stepping_seconds(&mut self, value: f64) {
+        self.stepping = value;
+    }
+    #[getter]
+    fn num_envs(&self) -> usize {
+        self.inner.num_envs()
+    }
+    #[getter]
+    fn threads(&self) -> usize {
+        self.inner.threads()
+    }
+    #[getter]
+    fn autoreset_mode(&self) -> &'static str {
+        self.inner.autoreset_mode().as_str()
+    }
+    #[getter]
+    fn task(&self) -> &'static str {
+        self.probe.inner.task().id()
+    }
+    #[getter]
+    fn horizon(&self) -> usize {
+        self.probe.inner.horizon()
+    }
+    #[getter]
+    fn observation_dim(&self) -> usize {
+        self.inner.observation_dim()
+    }
+    #[getter]
+    fn action_dim(&self) -> usize {
+        self.inner.action_dim()
+    }
+    #[getter]
+    fn max_gripper_width(&self) -> f64 {
+        self.probe.inner.max_gripper_width()
+    }
+    #[getter]
+    fn control_period(&self) -> f64 {
+        self.probe.inner.config().physics.control_period()
+    }
+    #[getter]
+    fn action_low<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.probe.inner.action_bounds().0.to_vec().into_pyarray(py)
+    }
+    #[getter]
+    fn action_high<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.probe.inner.action_bounds().1.to_vec().into_pyarray(py)
+    }
+    #[getter]
+    fn observation_layout<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        layout_list(py, self.probe.inner.observation_layout())
+    }
+    #[getter]
+    fn action_layout<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        layout_list(py, &self.probe.inner.action_layout())
+    }
+}

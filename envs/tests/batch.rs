@@ -1,0 +1,166 @@
+//! The batched environment: bitwise equal to B single environments with the same seeds,
+//! independent of the thread count, with gymnasium's auto-reset semantics and typed errors.
+
+use equigym_envs::batch::episode_seed_stream;
+use equigym_envs::rng::EpisodeRng;
+use equigym_envs::{AutoresetMode, BatchEnv, Env, EnvConfig, EnvError};
+
+const B: usize = 5;
+
+fn config(task: &str, horizon: usize) -> EnvConfig {
+    let mut c = EnvConfig::new(task);
+    c.horizon = Some(horizon);
+    c
+}
+
+fn batch(task: &str, horizon: usize, threads: usize, mode: AutoresetMode) -> BatchEnv {
+    let envs = (0..B).map(|_| Env::new(config(task, horizon)).unwrap()).collect();
+    BatchEnv::new(envs, threads, mode).unwrap()
+}
+
+/// Random actions for `steps` steps of B environments, flat.
+fn actions(env: &Env, steps: usize, seed: u64) -> Vec<Vec<f64>> {
+    let (lo, hi) = env.action_bounds();
+    let mut rng = EpisodeRng::from_seed(seed);
+    (0..steps).map(|_| (0..B * 10).map(|j| rng.uniform(lo[j % 10], hi[j % 10])).collect()).collect()
+}
+
+fn bits(v: &[f64]) -> Vec<u64> {
+    v.iter().map(|x| x.to_bits()).collect()
+}
+
+/// Everything a batch reports after one step, as bits.
+fn record(b: &BatchEnv) -> Vec<u64> {
+    let mut out = Vec::new();
+    for i in 0..b.num_envs() {
+        out.extend(bits(b.obs(i)));
+        let s = b.last_step(i);
+        out.extend([s.reward.to_bits(), s.terminated as u64, s.truncated as u64, s.success as u64, b.was_reset(i) as u64]);
+    }
+    out
+}
+
+#[test]
+fn batch_equals_single_environments_bitwise_for_any_thread_count_with_next_step_autoreset() {
+    let horizon = 7;
+    let seeds: Vec<u64> = (0..B as u64).map(|i| 100 + 3 * i).collect();
+    let probe = Env::new(config("lift", horizon)).unwrap();
+    let acts = actions(&probe, 20, 1);
+
+    // The reference: B single environments, reset by hand the way NextStep auto-reset does.
+    let mut singles: Vec<Env> = (0..B).map(|_| Env::new(config("lift", horizon)).unwrap()).collect();
+    let mut streams: Vec<EpisodeRng> = seeds.iter().map(|&s| episode_seed_stream(s)).collect();
+    let mut ended = [false; B];
+    let mut expected = Vec::new();
+    let mut row = Vec::new();
+    for (env, &s) in singles.iter_mut().zip(&seeds) {
+        row.extend(bits(env.reset(s).unwrap()));
+    }
+    let first_obs = row.clone();
+    for a in &acts {
+        let mut rec = Vec::new();
+        for i in 0..B {
+            if ended[i] {
+                let seed = streams[i].next_u64();
+                rec.extend(bits(singles[i].reset(seed).unwrap()));
+                rec.extend([0f64.to_bits(), 0, 0, 0, 1]);
+                ended[i] = false;
+            } else {
+                let r = singles[i].step(&a[i * 10..i * 10 + 10]).unwrap();
+                rec.extend(bits(singles[i].observe()));
+                rec.extend([r.reward.to_bits(), r.terminated as u64, r.truncated as u64, r.evaluation.success as u64, 0]);
+                ended[i] = r.terminated || r.truncated;
+            }
+        }
+        expected.push(rec);
+    }
+
+    for threads in [1, 2, 3] {
+        let mut b = batch("lift", horizon, threads, AutoresetMode::NextStep);
+        b.reset(&seeds).unwrap();
+        let obs0: Vec<u64> = (0..B).flat_map(|i| bits(b.obs(i))).collect();
+        assert_eq!(obs0, first_obs, "reset observations, {threads} threads");
+        for (t, a) in acts.iter().enumerate() {
+            b.step(a).unwrap();
+            assert_eq!(record(&b), expected[t], "step {t}, {threads} threads");
+        }
+        // Episode boundaries: 7 steps, one reset step, 7 steps, ... -> three episodes started.
+        assert_eq!(b.episode_index(0), 2);
+    }
+}
+
+#[test]
+fn same_step_autoreset_returns_the_reset_observation_and_keeps_the_final_one() {
+    let horizon = 4;
+    let seeds = [1, 2, 3, 4, 5];
+    let probe = Env::new(config("stack", horizon)).unwrap();
+    let acts = actions(&probe, horizon, 2);
+    let mut next = batch("stack", horizon, 2, AutoresetMode::NextStep);
+    let mut same = batch("stack", horizon, 2, AutoresetMode::SameStep);
+    next.reset(&seeds).unwrap();
+    same.reset(&seeds).unwrap();
+    for (t, a) in acts.iter().enumerate() {
+        next.step(a).unwrap();
+        same.step(a).unwrap();
+        for i in 0..B {
+            let last = t + 1 == horizon;
+            assert_eq!(same.last_step(i), next.last_step(i));
+            assert_eq!(same.last_step(i).truncated, last);
+            assert_eq!(same.was_reset(i), last);
+            if last {
+                assert_eq!(bits(same.final_obs(i).unwrap()), bits(next.obs(i)));
+            } else {
+                assert!(same.final_obs(i).is_none());
+                assert_eq!(bits(same.obs(i)), bits(next.obs(i)));
+            }
+        }
+    }
+    // The reset observation in SameStep mode is the one NextStep returns on the following call.
+    next.step(&acts[0]).unwrap();
+    for i in 0..B {
+        assert!(next.was_reset(i));
+        assert_eq!(bits(same.obs(i)), bits(next.obs(i)));
+        assert_eq!(same.episode_seeds()[i], next.episode_seeds()[i]);
+    }
+}
+
+#[test]
+fn bad_input_is_a_typed_error_and_nothing_steps() {
+    let mut b = batch("lift", 400, 2, AutoresetMode::NextStep);
+    assert!(matches!(b.step(&[0.0; B * 10]), Err(EnvError::CallOrder(_))));
+    b.reset(&[0, 1, 2, 3, 4]).unwrap();
+    let before: Vec<u64> = (0..B).flat_map(|i| bits(b.obs(i))).collect();
+    let hold: Vec<f64> = b.envs().flat_map(|e| e.current_target()).collect();
+    assert!(matches!(b.step(&hold[..B * 10 - 1]), Err(EnvError::WrongLength { .. })));
+    let mut bad = hold.clone();
+    bad[4 * 10 + 2] = f64::NAN;
+    match b.step(&bad) {
+        Err(EnvError::NonFinite { what, index, .. }) => {
+            assert_eq!(what, "action of environment 4");
+            assert_eq!(index, 2);
+        }
+        other => panic!("expected NonFinite, got {other:?}"),
+    }
+    assert!(b.envs().all(|e| e.elapsed_steps() == 0), "no environment stepped");
+    let after: Vec<u64> = (0..B).flat_map(|i| bits(b.obs(i))).collect();
+    assert_eq!(before, after);
+    assert!(matches!(b.reset(&[0, 1]), Err(EnvError::WrongLength { .. })));
+    b.step(&hold).unwrap();
+    assert!(b.envs().all(|e| e.elapsed_steps() == 1));
+    assert!(BatchEnv::<Env>::new(Vec::new(), 1, AutoresetMode::NextStep).is_err());
+    assert!("sometimes".parse::<AutoresetMode>().is_err());
+}
+
+#[test]
+fn masked_reset_resets_only_the_chosen_environments() {
+    let mut b = batch("lift", 400, 2, AutoresetMode::NextStep);
+    b.reset(&[10, 11, 12, 13, 14]).unwrap();
+    let hold: Vec<f64> = b.envs().flat_map(|e| e.current_target()).collect();
+    b.step(&hold).unwrap();
+    b.reset_masked(&[0, 99, 0, 0, 0], &[false, true, false, false, false]).unwrap();
+    let steps: Vec<usize> = b.envs().map(|e| e.elapsed_steps()).collect();
+    assert_eq!(steps, [1, 0, 1, 1, 1]);
+    let mut single = Env::new(EnvConfig::new("lift")).unwrap();
+    assert_eq!(bits(b.obs(1)), bits(single.reset(99).unwrap()));
+    assert_eq!(b.episode_seeds()[1], 99);
+}

@@ -1,0 +1,243 @@
+"""Native vector environments: B equigym environments stepped in Rust per call.
+
+>>> import gymnasium, equigym
+>>> envs = gymnasium.make_vec("EquiLift-v0", num_envs=16)          # threads: all cores
+>>> obs, info = envs.reset(seed=0)                                   # sub-env i gets seed 0 + i
+>>> obs, rewards, terminated, truncated, info = envs.step(envs.action_space.sample())
+
+One ``step`` is one call into Rust with all B actions as one array; the environments step in
+parallel on a Rust thread pool (``threads=...``) with the GIL released, and observations,
+rewards and flags come back as arrays. No Python code runs per sub-environment.
+
+Auto-reset (``metadata["autoreset_mode"]``) follows gymnasium 1.x:
+
+- ``NEXT_STEP`` (default): the step on which an episode ends returns its last observation with
+  ``terminated`` or ``truncated`` set; the next ``step`` ignores that sub-environment's action,
+  resets it and returns its reset observation with reward 0 and both flags False.
+- ``SAME_STEP`` (``autoreset_mode="same_step"``): the step on which an episode ends returns the
+  reset observation; the last observation of the ended episode is in ``info["final_obs"]``
+  (masked by ``info["_final_obs"]``) and its step info in ``info["final_info"]``.
+
+Episodes are truncated at the horizon (400 control steps, or ``horizon`` / ``max_episode_steps``)
+inside the vector environment; gymnasium's ``TimeLimit`` does not wrap vector environments.
+
+Seeds: ``reset(seed=s)`` seeds sub-environment ``i`` with ``s + i`` (as gymnasium's
+``SyncVectorEnv`` does), ``reset(seed=[s0, s1, ...])`` with ``s_i``; the first episode then
+equals ``gymnasium.make(id).reset(seed=s_i)`` bit for bit under the same actions. Automatic
+resets draw their episode seeds from a per-sub-environment stream seeded with ``s_i``;
+``info["episode_seed"]`` (on reset and on every auto-reset) says which seed each episode got.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from equigym import _core
+from equigym.envs import _ACTION_MODES
+
+try:  # gymnasium >= 1.1
+    from gymnasium.vector import AutoresetMode
+except ImportError:  # pragma: no cover - gymnasium 1.0 only knows next-step autoreset
+    AutoresetMode = None
+
+_MODES = {"next_step": "NextStep", "same_step": "SameStep"}
+
+
+def _mode_name(mode: Any) -> str:
+    """'next_step' / 'same_step' from a string or a gymnasium AutoresetMode."""
+    if AutoresetMode is not None and isinstance(mode, AutoresetMode):
+        mode = mode.value
+    if isinstance(mode, str):
+        key = mode.lower().replace("-", "_")
+        for name, value in _MODES.items():
+            if key in (name, value.lower()):
+                return name
+    raise ValueError(f"autoreset_mode must be 'next_step' or 'same_step' (or a gymnasium AutoresetMode), got {mode!r}")
+
+
+class EquiVectorEnv(VectorEnv):
+    """``num_envs`` copies of one equigym task as a :class:`gymnasium.vector.VectorEnv`.
+
+    Args:
+        task: Rust task id (``"lift"``, ``"stack"``, ``"square"``).
+        num_envs: number of sub-environments B.
+        threads: size of the Rust thread pool (0: one thread per core).
+        autoreset_mode: ``"next_step"`` (default) or ``"same_step"``, or a ``gymnasium.vector.AutoresetMode``.
+        max_episode_steps: truncation horizon (``gymnasium.make_vec`` passes the registered 400);
+            the smaller of this and ``horizon`` applies.
+        reward, action_mode, joint_limits, urdf, init_joint_noise, horizon, physics, ranges, variant:
+            as for :class:`equigym.EquiEnv`.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP if AutoresetMode else "NextStep"}
+    render_mode = None
+
+    def __init__(
+        self,
+        task: str = "lift",
+        num_envs: int = 1,
+        *,
+        threads: int = 0,
+        autoreset_mode: Any = "next_step",
+        max_episode_steps: int | None = None,
+        render_mode: str | None = None,
+        reward: str = "sparse",
+        action_mode: str = "absolute",
+        joint_limits: bool = True,
+        urdf: str | None = None,
+        init_joint_noise: float = 0.02,
+        horizon: int | None = None,
+        physics: dict[str, float] | None = None,
+        ranges: dict[str, tuple[float, float]] | None = None,
+        variant: str | None = None,
+    ) -> None:
+        if render_mode is not None:
+            raise ValueError("EquiVectorEnv does not render; use gymnasium.make(id, render_mode='rgb_array') per env")
+        if action_mode not in _ACTION_MODES:
+            raise ValueError(f"action_mode must be one of {_ACTION_MODES}, got {action_mode!r}")
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
+            raise ValueError(f"threads must be a non-negative integer (0: one per core), got {threads!r}")
+        mode = _mode_name(autoreset_mode)
+        if max_episode_steps is not None:
+            horizon = max_episode_steps if horizon is None else min(horizon, max_episode_steps)
+        self.core = _core.VecEnv(
+            task,
+            int(num_envs),
+            threads=int(threads),
+            autoreset_mode=mode,
+            reward=reward,
+            urdf=None if urdf is None else str(urdf),
+            joint_limits=joint_limits,
+            init_joint_noise=init_joint_noise,
+            horizon=horizon,
+            physics=physics,
+            ranges=ranges,
+            variant=variant,
+        )
+        self.num_envs = int(num_envs)
+        self.action_mode = action_mode
+        self.metadata = {"autoreset_mode": AutoresetMode(_MODES[mode]) if AutoresetMode else _MODES[mode]}
+        self._low = self.core.action_low
+        self._high = self.core.action_high
+        self._scale = 0.5 * (self._high - self._low)
+        dim = self.core.observation_dim
+        self.single_observation_space = spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float32)
+        if action_mode == "absolute":
+            self.single_action_space = spaces.Box(
+                self._low.astype(np.float32), self._high.astype(np.float32), dtype=np.float32
+            )
+        else:
+            self.single_action_space = spaces.Box(-1.0, 1.0, shape=(10,), dtype=np.float32)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._all = np.ones(self.num_envs, dtype=bool)
+        self._needs_reset = True
+
+    # -- metadata --------------------------------------------------------------------------
+    @property
+    def threads(self) -> int:
+        """Threads of the Rust pool that steps the sub-environments."""
+        return self.core.threads
+
+    @property
+    def autoreset_mode(self) -> str:
+        """``"next_step"`` or ``"same_step"``."""
+        return self.core.autoreset_mode
+
+    @property
+    def horizon(self) -> int:
+        return self.core.horizon
+
+    @property
+    def observation_fields(self) -> dict[str, slice]:
+        """Observation field name -> slice (of one row)."""
+        return {f["name"]: slice(f["start"], f["start"] + f["len"]) for f in self.core.observation_layout}
+
+    @property
+    def observation_layout(self) -> list[dict[str, Any]]:
+        return self.core.observation_layout
+
+    @property
+    def action_layout(self) -> list[dict[str, Any]]:
+        return self.core.action_layout
+
+    def episode_seeds(self) -> np.ndarray:
+        """Seed of each sub-environment's current episode (``EquiEnv.reset(seed)`` replays it)."""
+        return self.core.episode_seeds()
+
+    # -- gymnasium API ---------------------------------------------------------------------
+    def reset(self, *, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None):
+        n = self.num_envs
+        if seed is None:
+            seeds = self.np_random.integers(0, 2**63 - 1, size=n, dtype=np.int64).tolist()
+        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+            if seed < 0:
+                raise ValueError(f"seed must be None, a non-negative integer or a list of them, got {seed!r}")
+            super().reset(seed=int(seed))
+            seeds = [int(seed) + i for i in range(n)]
+        else:
+            try:
+                seeds = list(seed)
+            except TypeError:
+                seeds = []
+            if len(seeds) != n or any(
+                isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 0 for s in seeds
+            ):
+                raise ValueError(f"seed must be None, a non-negative integer or a list of {n} of them, got {seed!r}")
+            seeds = [int(s) for s in seeds]
+        mask = None
+        if options and "reset_mask" in options:
+            mask = np.asarray(options["reset_mask"])
+            if mask.shape != (n,) or mask.dtype != np.bool_ or not mask.any():
+                raise ValueError(f"options['reset_mask'] must be a bool array of shape ({n},) with a True value")
+            if self._needs_reset and not mask.all():
+                raise ValueError("the first reset must reset every sub-environment (no reset_mask)")
+            mask = mask.tolist()
+        obs = self.core.reset(seeds, mask)
+        self._needs_reset = False
+        reset = self._all if mask is None else np.asarray(mask)
+        return obs, {"episode_seed": self.core.episode_seeds(), "_episode_seed": reset.copy()}
+
+    def step(self, actions):
+        if self._needs_reset:
+            raise gymnasium.error.ResetNeeded("Cannot call step() before reset()")
+        a = np.asarray(actions)
+        if a.dtype.kind not in "fiu":
+            raise TypeError(f"actions must be a numeric array, got dtype {a.dtype}")
+        if a.shape != (self.num_envs, 10):
+            raise ValueError(f"actions must have shape ({self.num_envs}, 10), got {a.shape}")
+        if self.action_mode == "normalized":
+            a = self._low + (np.clip(a, -1.0, 1.0) + 1.0) * self._scale
+        elif a.dtype != np.float64 or not a.flags.c_contiguous:
+            a = np.ascontiguousarray(a, dtype=np.float64)
+        # NaN / infinity is rejected in Rust (ValueError naming the sub-environment) before anything steps.
+        obs, rewards, terminated, truncated, success, reset, final_obs = self.core.step(a)
+        infos: dict[str, Any] = {"success": success, "_success": self._all, "is_success": success, "_is_success": self._all}
+        if reset.any():
+            infos["episode_seed"] = self.core.episode_seeds()
+            infos["_episode_seed"] = reset
+            if final_obs is not None:
+                # same_step: the ended episodes' last observations and step infos.
+                infos["final_obs"] = final_obs
+                infos["_final_obs"] = reset
+                infos["final_info"] = {"success": success, "_success": reset, "is_success": success, "_is_success": reset}
+                infos["_final_info"] = reset
+        return obs, rewards, terminated, truncated, infos
+
+    def close_extras(self, **kwargs: Any) -> None:
+        pass
+
+    # -- helpers ---------------------------------------------------------------------------
+    def normalize_action(self, absolute: np.ndarray) -> np.ndarray:
+        """Map absolute actions to the normalized [-1, 1] space."""
+        a = np.asarray(absolute, dtype=np.float64)
+        return (2.0 * (a - self._low) / (self._high - self._low) - 1.0).astype(np.float32)
+
