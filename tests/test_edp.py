@@ -148,3 +148,15 @@ def test_latent_env_denoises_once_per_step_and_is_deterministic(tiny_policy):
     # Latent actions beyond the bound are clipped to it.
     env.reset(seed=1)
     np.testing.assert_array_equal(env.decode(np.full(40, 9.0)), env.decode(np.full(40, 1.5)))
+
+
+def test_latent_envs_run_in_vector_envs(tiny_policy):
+    envs = gymnasium.make_vec("EquiLift-Latent-v0", num_envs=3, vectorization_mode="sync", policy=tiny_policy)
+    obs, _ = envs.reset(seed=5)
+    assert obs.shape == (3, 22)
+    obs2, rewards, term, trunc, info = envs.step(np.zeros((3, 40), dtype=np.float32))
+    assert rewards.shape == (3,) and np.all(info["executed"] == 4)
+    # Sub-env i is seeded with 5 + i, like a single env with that seed.
+    single = gymnasium.make("EquiLift-Latent-v0", policy=tiny_policy)
+    o, _ = single.reset(seed=6)
+    np.testing.assert_array_equal(obs[1], o)
