@@ -27,6 +27,7 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BaseModel, BasePolicy
 from stable_baselines3.sac.policies import Actor, SACPolicy
 
+from baselines.equivariant import block_types
 from equigym.symmetry import Symmetry
 
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
@@ -75,12 +76,9 @@ class _Group:
         self.enn = enn
         self.order = sym.order
         self.gs = gspaces.no_base_space(group.cyclic_group(sym.order))
-        rep = {0: self.gs.trivial_repr, 1: self.gs.irrep(1)}
         self.obs_blocks, self.lat_blocks = sym.blocks("observation"), sym.blocks("latent")
-        self.obs_reps = [rep[f] for f, _ in self.obs_blocks]
-        self.lat_reps = [rep[f] for f, _ in self.lat_blocks]
-        self.obs_perm = [i for _, idx in self.obs_blocks for i in idx]
-        self.lat_perm = [i for _, idx in self.lat_blocks for i in idx]
+        self.obs_reps, self.obs_perm = block_types(self.gs, self.obs_blocks)
+        self.lat_reps, self.lat_perm = block_types(self.gs, self.lat_blocks)
 
     def regular(self, fields: int):
         return self.enn.FieldType(self.gs, fields * [self.gs.regular_repr])

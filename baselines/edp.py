@@ -39,6 +39,7 @@ try:
 except ImportError as exc:  # pragma: no cover
     raise ImportError("baselines.edp needs torch: pip install 'equigym[train]'") from exc
 
+from baselines.equivariant import block_types
 from equigym.demos import load as load_demos
 from equigym.symmetry import Symmetry
 
@@ -119,15 +120,14 @@ class EquivariantNoiseNet(tnn.Module):
         from escnn import nn as enn
 
         gs = gspaces.no_base_space(group.cyclic_group(order))
-        rep = {0: gs.trivial_repr, 1: gs.irrep(1)}
-        obs_dim = sum(len(i) for _, i in obs_blocks)
-        in_reps = [rep[f] for f, _ in obs_blocks] + [rep[f] for f, _ in chunk_blocks] + [gs.trivial_repr] * time_dim
-        out_reps = [rep[f] for f, _ in chunk_blocks]
-        # Natural order -> block order (each rho1 pair contiguous).
-        perm_in = [i for _, idx in obs_blocks for i in idx] + [obs_dim + i for _, idx in chunk_blocks for i in idx]
+        obs_reps, obs_perm = block_types(gs, obs_blocks)
+        out_reps, chunk_perm = block_types(gs, chunk_blocks)
+        in_reps = obs_reps + out_reps + [gs.trivial_repr] * time_dim
+        # Natural order -> block order (each rho1 pair contiguous); the time embedding is trivial.
+        perm_in = obs_perm + [len(obs_perm) + i for i in chunk_perm]
         perm_in += list(range(len(perm_in), len(perm_in) + time_dim))
         self.register_buffer("perm_in", torch.tensor(perm_in))
-        self.perm_out = [i for _, idx in chunk_blocks for i in idx]
+        self.perm_out = chunk_perm
         self.register_buffer("inv_out", torch.tensor(np.argsort(self.perm_out)))
         self.in_type = enn.FieldType(gs, in_reps)
         hidden = enn.FieldType(gs, hidden_fields * [gs.regular_repr])

@@ -89,7 +89,8 @@ def build(method: str, task: str, preset: dict[str, Any], seed: int, joint_limit
         cls = LatentSAC if method == "dsrl" else SAC
         model = cls(LayerNormSACPolicy, venv, learning_starts=preset["warmup"], policy_kwargs=dict(net_arch=arch, activation_fn=torch.nn.Tanh), **common)
     else:
-        dsrl = LatentSAC(LayerNormSACPolicy, venv, policy_kwargs=dict(net_arch=arch, activation_fn=torch.nn.Tanh), **common)
+        # Match the DSRL nets' parameter count (a policy alone, no model or replay buffer).
+        dsrl = LayerNormSACPolicy(venv.observation_space, venv.action_space, lambda _: 3e-4, net_arch=arch, activation_fn=torch.nn.Tanh)
         target = count_parameters(dsrl.actor) + count_parameters(dsrl.critic)
         residual = method == "approx"
         fields = equi_fields_matching(task, target, preset["layers"], residual)

@@ -118,7 +118,7 @@ def load(path: str | Path) -> dict[str, Any]:
         data = f["data"]
         env_args = json.loads(data.attrs["env_args"])
         task = ENV_IDS[env_args["env_name"]]
-        order = [fd["name"] for fd in _core.Env(task).observation_layout]
+        order = [fd["name"] for fd in _core.TaskSymmetry(task).layout("observation")]
         demos = []
         for name in sorted(data.keys(), key=lambda k: int(k.split("_")[1])):
             g = data[name]

@@ -24,6 +24,17 @@ ENV_IDS: dict[str, str] = {"EquiLift-v0": "lift", "EquiStack-v0": "stack", "Equi
 _ACTION_MODES = ("absolute", "normalized")
 
 
+def physics_options(physics: dict[str, Any] | None, controller: str) -> dict[str, Any]:
+    """The ``physics`` overrides with the arm ``controller`` (``"joint"`` or ``"cartesian"``) folded
+    in; shared by the single, vector and latent-action envs."""
+    if controller not in ("joint", "cartesian"):
+        raise ValueError(f"controller must be 'joint' or 'cartesian', got {controller!r}")
+    options = dict(physics or {})
+    if controller == "cartesian":
+        options["cartesian_control"] = True
+    return options
+
+
 class EquiEnv(gymnasium.Env):
     """One equigym task as a :class:`gymnasium.Env`.
 
@@ -68,11 +79,7 @@ class EquiEnv(gymnasium.Env):
         variant: str | None = None,
         controller: str = "joint",
     ) -> None:
-        if controller not in ("joint", "cartesian"):
-            raise ValueError(f"controller must be 'joint' or 'cartesian', got {controller!r}")
-        physics = dict(physics or {})
-        if controller == "cartesian":
-            physics["cartesian_control"] = True
+        physics = physics_options(physics, controller)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         if action_mode not in _ACTION_MODES:

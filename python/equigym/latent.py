@@ -21,6 +21,7 @@ import numpy as np
 from gymnasium import spaces
 
 from equigym import _core
+from equigym.envs import physics_options
 
 #: gymnasium id -> task id.
 LATENT_ENV_IDS: dict[str, str] = {
@@ -53,13 +54,23 @@ class EquiLatentEnv(gymnasium.Env):
             :class:`equigym._core.DiffusionPolicy` (shared between envs); default: the shipped one.
         bound: latent bound (actions are clipped to [-bound, bound]).
         ddim_steps: denoising steps (default: the policy's, 5).
-        Other keyword arguments (``joint_limits``, ``variant``, ``horizon``, ``ranges``,
-        ``physics``, ``init_joint_noise``, ``urdf``) configure the task as in :class:`EquiEnv`.
+        Other keyword arguments (``joint_limits``, ``controller``, ``variant``, ``horizon``,
+        ``ranges``, ``physics``, ``init_joint_noise``, ``urdf``) configure the task as in
+        :class:`EquiEnv`.
     """
 
     metadata = {"render_modes": [], "render_fps": 5}
 
-    def __init__(self, task: str = "lift", policy: Any = None, bound: float = 1.5, ddim_steps: int | None = None, **env_kwargs: Any) -> None:
+    def __init__(
+        self,
+        task: str = "lift",
+        policy: Any = None,
+        bound: float = 1.5,
+        ddim_steps: int | None = None,
+        controller: str = "joint",
+        **env_kwargs: Any,
+    ) -> None:
+        env_kwargs["physics"] = physics_options(env_kwargs.get("physics"), controller)
         if policy is None:
             policy = shipped_policy(task)
         if isinstance(policy, Path):

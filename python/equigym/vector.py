@@ -39,7 +39,7 @@ from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from equigym import _core
-from equigym.envs import _ACTION_MODES
+from equigym.envs import _ACTION_MODES, physics_options
 
 try:  # gymnasium >= 1.1
     from gymnasium.vector import AutoresetMode
@@ -96,7 +96,9 @@ class EquiVectorEnv(VectorEnv):
         physics: dict[str, float] | None = None,
         ranges: dict[str, tuple[float, float]] | None = None,
         variant: str | None = None,
+        controller: str = "joint",
     ) -> None:
+        physics = physics_options(physics, controller)
         if render_mode is not None:
             raise ValueError("EquiVectorEnv does not render; use gymnasium.make(id, render_mode='rgb_array') per env")
         if action_mode not in _ACTION_MODES:
