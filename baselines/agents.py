@@ -270,6 +270,24 @@ class EquiSACPolicy(SACPolicy):
         return EquiCritic(kw["observation_space"], kw["action_space"], kw["features_extractor"], kw["features_dim"],
                           n_critics=kw.get("n_critics", 2), **self._equi).to(self.device)
 
+    # escnn modules in eval mode keep their expanded weights as extra buffers; those are a cache
+    # of the parameters, never saved, so a checkpoint loads whatever mode either side was in.
+    _ESCNN_CACHE = (".matrix", ".expanded_bias")
+
+    def state_dict(self, *args: Any, **kwargs: Any):
+        state = super().state_dict(*args, **kwargs)
+        for key in [k for k in state if k.endswith(self._ESCNN_CACHE)]:
+            del state[key]
+        return state
+
+    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
+        training = self.training
+        self.train(True)  # drops the caches, so the keys match the saved ones
+        state = {k: v for k, v in state_dict.items() if not k.endswith(self._ESCNN_CACHE)}
+        result = super().load_state_dict(state, strict=strict, assign=assign)
+        self.set_training_mode(training)
+        return result
+
     def _build(self, lr_schedule) -> None:
         super()._build(lr_schedule)
         if self._equi["residual"]:

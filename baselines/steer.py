@@ -36,8 +36,8 @@ METHODS = ("dsrl", "equi", "approx", "sac")
 LATENT_IDS = {"lift": "EquiLift-Latent-v0", "stack": "EquiStack-Latent-v0", "square": "EquiSquare-Latent-v0"}
 RAW_IDS = {"lift": "EquiLift-v0", "stack": "EquiStack-v0", "square": "EquiSquare-v0"}
 PRESETS = {
-    "cpu": {"width": 256, "layers": 3, "utd": 2, "batch": 256, "n_envs": 4, "warmup": 1000},
-    "paper": {"width": 2048, "layers": 3, "utd": 30, "batch": 256, "n_envs": 4, "warmup": 6000},
+    "cpu": {"width": 64, "layers": 3, "utd": 4, "batch": 256, "n_envs": 4, "warmup": 1000, "ent_init": 1.0},
+    "paper": {"width": 2048, "layers": 3, "utd": 30, "batch": 256, "n_envs": 4, "warmup": 6000, "ent_init": 1.0},
 }
 
 
@@ -83,7 +83,7 @@ def build(method: str, task: str, preset: dict[str, Any], seed: int, joint_limit
     common = dict(
         learning_rate=3e-4, buffer_size=1_000_000, batch_size=preset["batch"], tau=0.005,
         gamma=0.999 if task == "square" else 0.99, train_freq=1, gradient_steps=preset["utd"] * preset["n_envs"],
-        ent_coef="auto_1.0", target_entropy=0.0, seed=seed, verbose=0, device="cpu",
+        ent_coef=f"auto_{preset['ent_init']}", target_entropy=0.0, seed=seed, verbose=0, device="cpu",
     )
     if method in ("dsrl", "sac"):
         cls = LatentSAC if method == "dsrl" else SAC
@@ -101,21 +101,44 @@ def build(method: str, task: str, preset: dict[str, Any], seed: int, joint_limit
     return model, make
 
 
-def evaluate(model: SAC, make, episodes: int, seed: int = 10_000) -> float:
-    """Success rate of the stochastic actor over seeded episodes (success if any step succeeds)."""
+def evaluate(model: SAC | None, make, episodes: int, seed: int = 10_000) -> float:
+    """Success rate over seeded episodes (success if any step succeeds) of the stochastic actor,
+    or, with ``model=None``, of the base policy alone: latent noise N(0, I) clipped to the bound."""
     env = make()
-    model.policy.set_training_mode(False)
+    if model is not None:
+        model.policy.set_training_mode(False)
+    rng = np.random.default_rng(seed)
+    high = env.action_space.high
     wins = 0
     for k in range(episodes):
         obs, _ = env.reset(seed=seed + k)
         done, success = False, False
         while not done:
-            action, _ = model.predict(obs, deterministic=False)
+            if model is None:
+                action = np.clip(rng.standard_normal(env.action_space.shape), -high, high).astype(np.float32)
+            else:
+                action, _ = model.predict(obs, deterministic=False)
             obs, _, term, trunc, info = env.step(action)
             success |= bool(info.get("success", False))
             done = term or trunc or success
         wins += success
     return wins / episodes
+
+
+def base_success(task: str, out: str | Path, episodes: int = 100, joint_limits: bool = True, policy_file: str | None = None) -> float:
+    """The base policy's success before steering (cached in <out>/<task>[-nolimits]/base.json)."""
+    path = Path(out) / f"{task}{'' if joint_limits else '-nolimits'}" / "base.json"
+    if path.exists():
+        data = json.loads(path.read_text())
+        if data.get("episodes") == episodes and data.get("policy") == policy_file:
+            return float(data["success_rate"])
+    kwargs: dict[str, Any] = {"joint_limits": joint_limits}
+    if policy_file:
+        kwargs["policy"] = policy_file
+    rate = evaluate(None, lambda: gymnasium.make(LATENT_IDS[task], **kwargs), episodes)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"task": task, "joint_limits": joint_limits, "episodes": episodes, "policy": policy_file, "success_rate": rate}))
+    return rate
 
 
 def mean_q(model: SAC, batch: int = 256) -> float:
@@ -165,9 +188,10 @@ class EvalLogger(BaseCallback):
         return steps < self.total
 
 
-def run(method: str, task: str, seed: int, steps: int, out: str | Path, preset_name: str = "cpu", joint_limits: bool = True,
+def run(method: str, task: str, seed: int, steps: int, out: str | Path, preset: str | dict[str, Any] = "cpu", joint_limits: bool = True,
         eval_every: int = 2000, eval_episodes: int = 50, policy_file: str | None = None, progress: bool = True) -> Path:
-    preset = PRESETS[preset_name]
+    if isinstance(preset, str):
+        preset = {"name": preset, **PRESETS[preset]}
     name = f"{task}{'' if joint_limits else '-nolimits'}/{method}/seed{seed}"
     run_dir = Path(out) / name
     ckpt = run_dir / "checkpoint"
@@ -175,7 +199,7 @@ def run(method: str, task: str, seed: int, steps: int, out: str | Path, preset_n
     torch.set_num_threads(1)
     model, make = build(method, task, preset, seed, joint_limits, policy_file)
     chunk = 1 if method == "sac" else 4
-    meta = {"method": method, "task": task, "seed": seed, "preset": preset_name, "steps": steps, "joint_limits": joint_limits,
+    meta = {"method": method, "task": task, "seed": seed, "preset": preset, "steps": steps, "joint_limits": joint_limits,
             "params_actor": count_parameters(model.actor), "params_critic": count_parameters(model.critic)}
     if (ckpt / "model.zip").exists():
         model = model.__class__.load(ckpt / "model.zip", env=model.get_env(), device="cpu")
@@ -191,6 +215,50 @@ def run(method: str, task: str, seed: int, steps: int, out: str | Path, preset_n
     return run_dir
 
 
+def _run_args(a: argparse.Namespace, method: str, task: str, seed: int) -> list[str]:
+    args = ["run", "--method", method, "--task", task, "--seed", str(seed), "--steps", str(a.steps), "--out", a.out,
+            "--preset", a.preset, "--eval-every", str(a.eval_every), "--eval-episodes", str(a.eval_episodes), "--no-progress"]
+    if a.no_joint_limits:
+        args.append("--no-joint-limits")
+    if a.policy:
+        args += ["--policy", a.policy]
+    if a.ent_init is not None:
+        args += ["--ent-init", str(a.ent_init)]
+    return args
+
+
+def sweep(a: argparse.Namespace) -> None:
+    """Every method x task x seed, ``--workers`` runs at a time (one process and one torch thread
+    each), resuming finished or killed runs from their checkpoints."""
+    import subprocess
+    import sys
+    from concurrent.futures import ThreadPoolExecutor
+
+    from tqdm import tqdm
+
+    jobs = [(m, t, s) for t in a.tasks for s in a.seeds for m in a.methods]  # seed-major: early results cover every method
+    for t in a.tasks:
+        rate = base_success(t, a.out, a.base_episodes, not a.no_joint_limits, a.policy)
+        print(f"{t}: base policy success {rate:.3f} over {a.base_episodes} episodes")
+    bar = tqdm(total=len(jobs), desc="runs", unit="run")
+
+    def one(job):
+        m, t, s = job
+        log = Path(a.out) / f"{t}{'' if not a.no_joint_limits else '-nolimits'}" / m / f"seed{s}" / "stdout.txt"
+        log.parent.mkdir(parents=True, exist_ok=True)
+        with open(log, "a") as f:
+            rc = subprocess.call([sys.executable, "-m", "baselines.steer", *_run_args(a, m, t, s)], stdout=f, stderr=subprocess.STDOUT)
+        bar.update(1)
+        bar.write(f"{t}/{m}/seed{s}: {'done' if rc == 0 else f'failed (exit {rc}, see {log})'}")
+        return rc
+
+    with ThreadPoolExecutor(a.workers) as pool:
+        codes = list(pool.map(one, jobs))
+    bar.close()
+    if any(codes):
+        raise SystemExit(f"{sum(c != 0 for c in codes)} of {len(jobs)} runs failed")
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -198,19 +266,29 @@ def main(argv: list[str] | None = None) -> None:
         s = sub.add_parser(name)
         if name == "run":
             s.add_argument("--method", choices=METHODS, required=True)
-            s.add_argument("--task", default="lift")
+            s.add_argument("--task", default="lift", choices=sorted(LATENT_IDS))
             s.add_argument("--seed", type=int, default=0)
+            s.add_argument("--no-progress", action="store_true")
         else:
             s.add_argument("--methods", nargs="+", choices=METHODS, default=["dsrl", "equi", "approx"])
-            s.add_argument("--tasks", nargs="+", default=["lift"])
+            s.add_argument("--tasks", nargs="+", default=["lift"], choices=sorted(LATENT_IDS))
             s.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
-        s.add_argument("--steps", type=int, default=20_000)
+            s.add_argument("--workers", type=int, default=2, help="runs at a time (one core each)")
+            s.add_argument("--base-episodes", type=int, default=100, help="episodes for the base policy's success")
+        s.add_argument("--steps", type=int, default=20_000, help="primitive environment steps per run")
         s.add_argument("--out", default="runs/steer")
         s.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
+        s.add_argument("--ent-init", type=float, default=None, help="initial entropy coefficient (default: the preset's)")
         s.add_argument("--no-joint-limits", action="store_true")
         s.add_argument("--eval-every", type=int, default=2000)
         s.add_argument("--eval-episodes", type=int, default=50)
         s.add_argument("--policy", default=None, help="EDP file (default: the shipped one)")
+    b = sub.add_parser("base", help="success of the base policy alone (latent noise N(0, I))")
+    b.add_argument("--task", default="lift", choices=sorted(LATENT_IDS))
+    b.add_argument("--episodes", type=int, default=100)
+    b.add_argument("--out", default="runs/steer")
+    b.add_argument("--no-joint-limits", action="store_true")
+    b.add_argument("--policy", default=None)
     r = sub.add_parser("report")
     r.add_argument("--runs", default="runs/steer")
     r.add_argument("--out", default="docs/steering")
@@ -219,10 +297,16 @@ def main(argv: list[str] | None = None) -> None:
         from baselines.report import write_report
 
         print(write_report(a.runs, a.out))
-        return
-    jobs = [(a.method, a.task, a.seed)] if a.cmd == "run" else [(m, t, s) for t in a.tasks for m in a.methods for s in a.seeds]
-    for method, task, seed in jobs:
-        run(method, task, seed, a.steps, a.out, a.preset, not a.no_joint_limits, a.eval_every, a.eval_episodes, a.policy)
+    elif a.cmd == "base":
+        print(f"{a.task}: base policy success {base_success(a.task, a.out, a.episodes, not a.no_joint_limits, a.policy):.3f}")
+    elif a.cmd == "sweep":
+        sweep(a)
+    else:
+        preset = {"name": a.preset, **PRESETS[a.preset]}
+        if a.ent_init is not None:
+            preset["ent_init"] = a.ent_init
+        run(a.method, a.task, a.seed, a.steps, a.out, preset, not a.no_joint_limits, a.eval_every, a.eval_episodes, a.policy,
+            progress=not a.no_progress)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,9 @@ Measures, taking turns (never two measurements at once):
    (pinned to the first T CPUs): env steps/s, time per batched step, and the share of each step
    spent in Python (wall time of EquiVectorEnv.step minus the time inside the Rust batch step,
    which the core measures with the GIL released); vector reset time;
-3. [latent-action env steps/s and EDP chunks/s: not yet, the latent envs do not exist yet].
+3. the latent-action vector env (``gymnasium.make_vec("EquiLift-Latent-v0")``: one batched DDIM
+   of the shipped EDP + the chunks' env steps per call) for B in --latent-batch-sizes on 1 and 2
+   threads, and the EDP's chunks/s in Rust vs the same MLP + DDIM in PyTorch (needs torch).
 
 Writes Markdown + JSON (--out, default benches/results/suite.md) and a PNG plot next to them,
 with the machine, the load average before/after every part, and the ratios of the targets.
@@ -36,6 +38,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+sys.path.insert(1, str(HERE.parent))  # baselines.edp, for the PyTorch side of the EDP timing
 import peers  # noqa: E402  (shared helpers: pinning, load, versions, the equigym and robosuite timers)
 
 PEERS_DIR = peers.PEERS_DIR
@@ -60,6 +63,9 @@ def parse_args():
     ap.add_argument("--batch-sizes", default="1,2,4,8,16,32,64")
     ap.add_argument("--threads", default="1,2")
     ap.add_argument("--vector-task", default="EquiLift-v0")
+    ap.add_argument("--latent-batch-sizes", default="1,16,64")
+    ap.add_argument("--latent-steps", type=int, default=1500, help="latent steps per repetition (all sub-envs)")
+    ap.add_argument("--no-latent", action="store_true", help="skip the latent-action env and EDP part")
     ap.add_argument("--vector-env-steps", type=int, default=4000,
                     help="environment steps per repetition of each (B, T) (at least 20 batch steps)")
     ap.add_argument("--robosuite-python", type=Path, default=PEERS_DIR / "venv_robosuite" / "bin" / "python")
@@ -77,6 +83,8 @@ def parse_args():
         args.steps, args.reps, args.resets, args.warmup = 300, 1, 3, 50
         args.vector_env_steps = 640
         args.batch_sizes = "1,8,64"
+        args.latent_steps = 200
+    args.latent_batch_sizes = [int(b) for b in str(args.latent_batch_sizes).split(",")]
     args.batch_sizes = [int(b) for b in str(args.batch_sizes).split(",")]
     args.threads = [int(t) for t in str(args.threads).split(",")]
     args.equigym_ids = [i for s in args.equigym_ids for i in s.split(",") if i]
@@ -148,6 +156,46 @@ def bench_vector(env_id, b, t, args):
     return res
 
 
+# ---------------------------------------------------------------- latent-action env and EDP
+
+def bench_latent(b, t, args):
+    import gymnasium
+    import numpy as np
+
+    res = {"B": b, "threads": t, "load_before": peers.loadavg()}
+    envs = gymnasium.make_vec("EquiLift-Latent-v0", num_envs=b, threads=t)
+    core = envs.unwrapped.core
+    n = max(10, args.latent_steps // b)
+    rng = np.random.default_rng(args.seed)
+    envs.reset(seed=args.seed)
+    for _ in range(3):
+        envs.step(rng.standard_normal((b, 40)))
+    rates, py_share, cpu_used = [], [], []
+    for _ in range(args.reps):
+        latents = [rng.standard_normal((b, 40)) for _ in range(n)]
+        core.stepping_seconds = 0.0
+        c0, t0 = time.process_time(), time.perf_counter()
+        for w in latents:
+            envs.step(w)
+        wall = time.perf_counter() - t0
+        rates.append(n * b / wall)
+        py_share.append((wall - core.stepping_seconds) / wall)
+        cpu_used.append((time.process_time() - c0) / wall)
+    k = rates.index(statistics.median(rates))
+    res.update(latent_steps_per_s=rates[k], env_steps_per_s=rates[k] * envs.unwrapped.chunk_len,
+               python_share=py_share[k], cpus_used=cpu_used[k])
+    envs.close()
+    return res
+
+
+def bench_edp(args):
+    from baselines.edp import benchmark
+
+    import equigym.latent
+
+    return {"rows": benchmark(equigym.latent.shipped_policy("lift"), batches=(1, 16, 256), seconds=1.0 if args.quick else 2.0)}
+
+
 # ---------------------------------------------------------------- report
 
 def fmt(x, spec=",.0f"):
@@ -168,7 +216,31 @@ def ratio(a, b, spec=".1f"):
     return f"{a / b:{spec}}×" if a and b else "–"
 
 
-def report(meta, single, pandagym, vector, plot_name):
+def latent_section(m, latent, edp):
+    L = ["", "## Latent-action env (EquiLift-Latent-v0, shipped EDP, `gymnasium.make_vec`)", ""]
+    if not latent:
+        return L + ["(not measured in this run)"]
+    L += ["One latent step = one deterministic DDIM (5 steps) of the batch's B latent noises + 4 control steps per "
+          "sub-env. *Python share* as above.", "",
+          "| B | threads | latent steps/s | env steps/s | Python share | CPUs used |", "|---:|---:|---:|---:|---:|---:|"]
+    for v in latent:
+        L.append(f"| {v['B']} | {v['threads']} | {fmt(get(v, 'latent_steps_per_s'))} | {fmt(get(v, 'env_steps_per_s'))} "
+                 f"| {fmt(100 * get(v, 'python_share') if get(v, 'python_share') is not None else None, '.1f')} % "
+                 f"| {fmt(get(v, 'cpus_used'), '.2f')} |")
+    rows = get(edp, "rows")
+    if rows:
+        keys = [k for k in rows[0] if k != "batch"]
+        L += ["", "EDP inference, chunks/s, one thread each (Rust runtime vs the same MLP + DDIM in PyTorch):", "",
+              "| batch | " + " | ".join(keys) + " | Rust / PyTorch float32 |", "|---:|" + "---:|" * (len(keys) + 1)]
+        for r in rows:
+            L.append(f"| {r['batch']} | " + " | ".join(fmt(r[k]) for k in keys)
+                     + f" | {ratio(r.get('rust (float64)'), r.get('pytorch (float32)'), '.2f')} |")
+    elif edp:
+        L += ["", f"EDP inference: {edp.get('error', 'not measured')}"]
+    return L
+
+
+def report(meta, single, pandagym, vector, plot_name, latent=None, edp=None):
     m = meta
     L = [
         "# equigym performance suite", "",
@@ -222,7 +294,7 @@ def report(meta, single, pandagym, vector, plot_name):
         r1, r2 = get(by.get((b, 1)), "env_steps_per_s"), get(by.get((b, 2)), "env_steps_per_s")
         L.append(f"| {b} | " + " | ".join(cells) + f" | {ratio(r2, r1, '.2f')} "
                  f"| {fmt(get(by.get((b, 1)), 'reset_ms'), '.2f')} |")
-    L += ["", "Latent-action env steps/s and EDP chunks/s: not measured yet (the latent-action envs do not exist yet)."]
+    L += latent_section(m, latent, edp)
 
     # Targets.
     L += ["", "## Targets (ratios from this run)", "", "| target | measured | met |", "|---|---:|:---:|"]
@@ -307,7 +379,7 @@ README_BEGIN = "<!-- suite:begin (written by benches/suite.py --update-readme) -
 README_END = "<!-- suite:end -->"
 
 
-def readme_block(meta, single, pandagym, vector, plot_rel):
+def readme_block(meta, single, pandagym, vector, plot_rel, latent=None, edp=None):
     """The README's figures, from one suite run."""
     load0, load1 = meta["load_start"], meta["load_end"]
     busy = load0 and max(load0[0], (load1 or [0])[0]) > 0.7
@@ -343,6 +415,17 @@ def readme_block(meta, single, pandagym, vector, plot_rel):
                     f"{fmt(cpus_used(v2), '.2f')} | {fmt(100 * max(sh) if sh else None, '.1f')} % |")
     L += ["", f"| vector env ({meta['args']['vector_task']}), B | env steps/s, 1 thread | 2 threads | 2 / 1 "
               "| CPUs the run got, 1 / 2 threads | Python share of a step |", "|---:|---:|---:|---:|---:|---:|"] + rows
+    best = max((v for v in latent or [] if get(v, "latent_steps_per_s")), key=lambda v: v["latent_steps_per_s"], default=None)
+    one = next((v for v in latent or [] if v["B"] == 1 and v["threads"] == 1 and get(v, "latent_steps_per_s")), None)
+    if best and one:
+        L += ["", f"Latent-action env (EquiLift-Latent-v0, batched DDIM + chunk): {fmt(one['latent_steps_per_s'])} latent "
+                  f"steps/s for one env, {fmt(best['latent_steps_per_s'])} at B = {best['B']} on {best['threads']} "
+                  f"thread(s) ({fmt(best['env_steps_per_s'])} env steps/s)."]
+    rows = get(edp, "rows")
+    if rows:
+        L += ["", "EDP chunks/s, one thread: " + "; ".join(
+            f"batch {r['batch']}: Rust {fmt(r['rust (float64)'])} vs PyTorch {fmt(r['pytorch (float32)'])} (float32)"
+            for r in rows) + "."]
     L += ["", f"![performance suite]({plot_rel})", "", README_END]
     return "\n".join(L)
 
@@ -359,16 +442,16 @@ def update_readme(block, path=None):
     log(f"updated {path}")
 
 
-def write_outputs(args, meta, single, pandagym, vector):
+def write_outputs(args, meta, single, pandagym, vector, latent=None, edp=None):
     args.out.parent.mkdir(parents=True, exist_ok=True)
     png = args.out.with_suffix(".png")
     has_plot = plot(meta, single, pandagym, vector, png)
-    md = report(meta, single, pandagym, vector, png.name if has_plot else "(no plot: matplotlib missing)")
+    md = report(meta, single, pandagym, vector, png.name if has_plot else "(no plot: matplotlib missing)", latent, edp)
     print(md)
     args.out.write_text(md)
     if args.update_readme:
         rel = os.path.relpath(png, HERE.parent) if has_plot else "benches/results/suite.md"
-        update_readme(readme_block(meta, single, pandagym, vector, rel))
+        update_readme(readme_block(meta, single, pandagym, vector, rel, latent, edp))
     log(f"wrote {args.out}" + (f", {png}" if has_plot else ""))
 
 
@@ -376,7 +459,7 @@ def main():
     args = parse_args()
     if args.from_json:
         data = json.loads(args.from_json.read_text())
-        write_outputs(args, data["meta"], data["single"], data["pandagym"], data["vector"])
+        write_outputs(args, data["meta"], data["single"], data["pandagym"], data["vector"], data.get("latent"), data.get("edp"))
         return
     cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
     meta = {
@@ -429,12 +512,35 @@ def main():
             v.setdefault("B", b)
             v.setdefault("threads", t)
             vector.append(v)
+
+    # 3. latent-action vector env and EDP inference
+    latent, edp = [], None
+    if not args.no_latent:
+        meta["load_parts"]["latent"] = peers.loadavg()
+        for t in args.threads:
+            use = set(cpus[:t]) if len(cpus) >= t else set(cpus)
+            try:
+                os.sched_setaffinity(0, use)
+            except (AttributeError, OSError):
+                pass
+            for b in args.latent_batch_sizes:
+                log(f"[latent] B={b} T={t} ...")
+                v = peers.guarded(bench_latent, b, t, args)
+                v.setdefault("B", b)
+                v.setdefault("threads", t)
+                latent.append(v)
+        try:
+            os.sched_setaffinity(0, {cpus[0]} if cpus else set())
+        except (AttributeError, OSError, IndexError):
+            pass
+        log("[edp] chunks/s, Rust vs PyTorch ...")
+        edp = peers.guarded(bench_edp, args)
     meta["load_end"] = peers.loadavg()
 
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".json").write_text(json.dumps(
-        {"meta": meta, "single": single, "pandagym": pandagym, "vector": vector}, indent=1) + "\n")
-    write_outputs(args, meta, single, pandagym, vector)
+        {"meta": meta, "single": single, "pandagym": pandagym, "vector": vector, "latent": latent, "edp": edp}, indent=1) + "\n")
+    write_outputs(args, meta, single, pandagym, vector, latent, edp)
 
 
 if __name__ == "__main__":

@@ -160,3 +160,61 @@ def test_latent_envs_run_in_vector_envs(tiny_policy):
     single = gymnasium.make("EquiLift-Latent-v0", policy=tiny_policy)
     o, _ = single.reset(seed=6)
     np.testing.assert_array_equal(obs[1], o)
+
+
+def test_native_latent_vector_env_equals_single_envs(tiny_policy):
+    """make_vec runs the latent envs natively (one batched DDIM per step) and gives, bit for bit,
+    what B single latent envs give with the same seeds and latent actions, for any thread count."""
+    from equigym.latent import EquiLatentVectorEnv
+
+    n, steps = 5, 4
+    rng = np.random.default_rng(1)
+    latents = [rng.standard_normal((n, 40)).astype(np.float32) for _ in range(steps)]
+    singles = []
+    for k in range(n):
+        env = gymnasium.make("EquiLift-Latent-v0", policy=tiny_policy, horizon=12)
+        rows = [env.reset(seed=20 + k)[0]]
+        for t in range(3):
+            obs, reward, term, trunc, info = env.step(latents[t][k])
+            rows.append((obs, reward, trunc, info["executed"]))
+        singles.append(rows)
+    for threads in (1, 2):
+        envs = gymnasium.make_vec("EquiLift-Latent-v0", num_envs=n, policy=tiny_policy, horizon=12, threads=threads)
+        assert isinstance(envs.unwrapped, EquiLatentVectorEnv)
+        assert envs.single_action_space.shape == (40,) and envs.single_action_space.high[0] == np.float32(1.5)
+        obs, info = envs.reset(seed=20)
+        assert list(info["episode_seed"]) == [20 + k for k in range(n)]
+        for k in range(n):
+            np.testing.assert_array_equal(obs[k], singles[k][0])
+        for t in range(3):
+            obs, rewards, term, trunc, info = envs.step(latents[t])
+            for k in range(n):
+                s_obs, s_reward, s_trunc, s_exec = singles[k][t + 1]
+                np.testing.assert_array_equal(obs[k], s_obs)
+                assert rewards[k] == s_reward and trunc[k] == s_trunc and info["executed"][k] == s_exec
+        assert trunc.all()  # horizon 12 = three chunks of four
+        assert envs.unwrapped.last_chunks().shape == (n, 4, 10)
+        # Next-step auto-reset: the following step resets every sub-env with reward 0.
+        obs, rewards, term, trunc, info = envs.step(latents[3])
+        assert info["_episode_seed"].all() and not rewards.any() and not info["executed"].any()
+        with pytest.raises(ValueError, match="shape"):
+            envs.step(np.zeros((n, 39)))
+        bad = np.zeros((n, 40))
+        bad[2, 3] = np.nan
+        with pytest.raises(ValueError, match="environment 2"):
+            envs.step(bad)
+        envs.close()
+
+
+def test_sb3_adapter_runs_latent_envs(tiny_policy):
+    pytest.importorskip("stable_baselines3")
+    from equigym.sb3 import EquiVecEnv
+
+    venv = EquiVecEnv("EquiLift-Latent-v0", num_envs=2, policy=tiny_policy, horizon=8)
+    venv.seed(3)
+    obs = venv.reset()
+    assert obs.shape == (2, 22)
+    for _ in range(2):
+        obs, rewards, dones, infos = venv.step(np.zeros((2, 40), dtype=np.float32))
+    assert dones.all() and all(i["TimeLimit.truncated"] and i["executed"] == 4 for i in infos)
+    assert all(i["terminal_observation"].shape == (22,) for i in infos)

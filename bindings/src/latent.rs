@@ -3,14 +3,18 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use equigym_wrappers::latent::{LatentEnv as RustLatentEnv, DEFAULT_LATENT_BOUND};
+use std::time::Instant;
+
+use equigym_envs::AutoresetMode;
+use equigym_wrappers::latent::{latent_batch, LatentBatchEnv, LatentEnv as RustLatentEnv, DEFAULT_LATENT_BOUND};
 use equigym_wrappers::DiffusionPolicy as RustPolicy;
 use numpy::ndarray::Array3;
-use numpy::{IntoPyArray, PyArray1, PyArray3, PyReadonlyArray1, PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
 use crate::symmetry::sym_err;
+use crate::vector::{flat_rows, obs_array, step_outputs, StepOut};
 use crate::{info_dict, to_py, Env, EquigymError};
 
 /// An exported equivariant diffusion policy, run in Rust (batched deterministic DDIM).
@@ -81,6 +85,14 @@ impl DiffusionPolicy {
     }
 }
 
+/// A loaded `DiffusionPolicy` (shared) or a path to load one from.
+fn policy_arc(policy: &Bound<'_, PyAny>) -> PyResult<Arc<RustPolicy>> {
+    Ok(match policy.cast::<DiffusionPolicy>() {
+        Ok(p) => p.borrow().inner.clone(),
+        Err(_) => Arc::new(RustPolicy::load(policy.extract::<PathBuf>()?).map_err(sym_err)?),
+    })
+}
+
 /// A task whose action is the diffusion policy's latent noise (see `equigym.latent`).
 #[pyclass(module = "equigym._core", name = "LatentEnv")]
 pub struct LatentEnv {
@@ -105,10 +117,7 @@ impl LatentEnv {
         ranges: Option<&Bound<'_, PyDict>>,
         variant: Option<String>,
     ) -> PyResult<Self> {
-        let policy = match policy.cast::<DiffusionPolicy>() {
-            Ok(p) => p.borrow().inner.clone(),
-            Err(_) => Arc::new(RustPolicy::load(policy.extract::<PathBuf>()?).map_err(sym_err)?),
-        };
+        let policy = policy_arc(policy)?;
         let env = Env::new(task, "sparse", urdf, joint_limits, init_joint_noise, horizon, physics, ranges, variant)?.inner;
         let steps = ddim_steps.unwrap_or(policy.default_ddim_steps);
         Ok(Self { inner: RustLatentEnv::new(env, policy, bound, steps).map_err(sym_err)? })
@@ -186,5 +195,146 @@ impl LatentEnv {
     #[getter]
     fn observation_dim(&self) -> usize {
         self.inner.env().observation_layout().dim()
+    }
+}
+
+/// B latent-action environments behind one batched `reset` / `step`: one batched DDIM for all
+/// B latent actions, then the chunks run in parallel (see `equigym.latent.EquiLatentVectorEnv`).
+#[pyclass(module = "equigym._core", name = "LatentVecEnv")]
+pub struct LatentVecEnv {
+    inner: LatentBatchEnv,
+    horizon: usize,
+    stepping: f64,
+}
+
+#[pymethods]
+impl LatentVecEnv {
+    #[new]
+    #[pyo3(signature = (task, policy, num_envs, *, threads=0, autoreset_mode="next_step", bound=DEFAULT_LATENT_BOUND, ddim_steps=None, urdf=None, joint_limits=true, init_joint_noise=0.02, horizon=None, physics=None, ranges=None, variant=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        task: &str,
+        policy: &Bound<'_, PyAny>,
+        num_envs: usize,
+        threads: usize,
+        autoreset_mode: &str,
+        bound: f64,
+        ddim_steps: Option<usize>,
+        urdf: Option<PathBuf>,
+        joint_limits: bool,
+        init_joint_noise: f64,
+        horizon: Option<usize>,
+        physics: Option<&Bound<'_, PyDict>>,
+        ranges: Option<&Bound<'_, PyDict>>,
+        variant: Option<String>,
+    ) -> PyResult<Self> {
+        if num_envs == 0 {
+            return Err(EquigymError::new_err("num_envs must be at least 1"));
+        }
+        let mode = autoreset_mode.parse::<AutoresetMode>().map_err(to_py)?;
+        let policy = policy_arc(policy)?;
+        let steps = ddim_steps.unwrap_or(policy.default_ddim_steps);
+        let envs = (0..num_envs)
+            .map(|_| {
+                let env = Env::new(task, "sparse", urdf.clone(), joint_limits, init_joint_noise, horizon, physics, ranges, variant.clone())?.inner;
+                RustLatentEnv::new(env, policy.clone(), bound, steps).map_err(sym_err)
+            })
+            .collect::<PyResult<Vec<_>>>()?;
+        let horizon = envs[0].env().horizon();
+        Ok(Self { inner: latent_batch(envs, threads, mode).map_err(sym_err)?, horizon, stepping: 0.0 })
+    }
+
+    /// Reset the environments (all, or those where `mask` is true), one seed each.
+    #[pyo3(signature = (seeds, mask=None))]
+    fn reset<'py>(&mut self, py: Python<'py>, seeds: Vec<u64>, mask: Option<Vec<bool>>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let inner = &mut self.inner;
+        py.detach(|| match mask {
+            None => inner.reset(&seeds),
+            Some(mask) => inner.reset_masked(&seeds, &mask),
+        })
+        .map_err(to_py)?;
+        Ok(obs_array(&self.inner, |i| Some(self.inner.obs(i).to_vec())).into_pyarray(py))
+    }
+
+    /// Step with a (B, latent_dim) float64 array; returns what `VecEnv.step` returns.
+    fn step<'py>(&mut self, py: Python<'py>, latents: PyReadonlyArray2<'py, f64>) -> PyResult<StepOut<'py>> {
+        let shape = latents.shape();
+        let (n, dim) = (self.inner.num_envs(), self.inner.action_dim());
+        if shape != [n, dim] {
+            return Err(EquigymError::new_err(format!("latent actions must have shape ({n}, {dim}), got {shape:?}")));
+        }
+        let flat = flat_rows(&latents);
+        let inner = &mut self.inner;
+        let (result, secs) = py.detach(|| {
+            let start = Instant::now();
+            let result = inner.step(&flat);
+            (result, start.elapsed().as_secs_f64())
+        });
+        self.stepping += secs;
+        result.map_err(to_py)?;
+        Ok(step_outputs(py, &self.inner))
+    }
+
+    /// Primitive steps each environment's last latent step executed (0 where it was reset).
+    fn executed<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u64>> {
+        (0..self.inner.num_envs())
+            .map(|i| if self.inner.was_reset(i) && self.inner.autoreset_mode() == AutoresetMode::NextStep { 0 } else { self.inner.env(i).map_or(0, |e| e.last_executed() as u64) })
+            .collect::<Vec<_>>()
+            .into_pyarray(py)
+    }
+
+    /// The action chunks the last step executed, (B, latent_dim) absolute actions.
+    fn last_chunks<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let flat: Vec<f64> = self.inner.envs().flat_map(|e| e.last_chunk().to_vec()).collect();
+        numpy::ndarray::Array2::from_shape_vec((self.inner.num_envs(), self.inner.action_dim()), flat)
+            .map(|a| a.into_pyarray(py))
+            .map_err(|e| EquigymError::new_err(e.to_string()))
+    }
+
+    fn observe<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
+        obs_array(&self.inner, |i| Some(self.inner.obs(i).to_vec())).into_pyarray(py)
+    }
+    fn episode_seeds<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u64>> {
+        self.inner.episode_seeds().into_pyarray(py)
+    }
+    #[getter]
+    fn stepping_seconds(&self) -> f64 {
+        self.stepping
+    }
+    #[setter]
+    fn set_stepping_seconds(&mut self, value: f64) {
+        self.stepping = value;
+    }
+    #[getter]
+    fn num_envs(&self) -> usize {
+        self.inner.num_envs()
+    }
+    #[getter]
+    fn threads(&self) -> usize {
+        self.inner.threads()
+    }
+    #[getter]
+    fn autoreset_mode(&self) -> &'static str {
+        self.inner.autoreset_mode().as_str()
+    }
+    #[getter]
+    fn horizon(&self) -> usize {
+        self.horizon
+    }
+    #[getter]
+    fn observation_dim(&self) -> usize {
+        self.inner.observation_dim()
+    }
+    #[getter]
+    fn latent_dim(&self) -> usize {
+        self.inner.action_dim()
+    }
+    #[getter]
+    fn chunk_len(&self) -> usize {
+        self.inner.env(0).map_or(0, |e| e.chunk_len())
+    }
+    #[getter]
+    fn bound(&self) -> f64 {
+        self.inner.env(0).map_or(0.0, |e| e.bound())
     }
 }

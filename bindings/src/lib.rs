@@ -267,6 +267,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<symmetry::TaskSymmetry>()?;
     m.add_class::<latent::DiffusionPolicy>()?;
     m.add_class::<latent::LatentEnv>()?;
+    m.add_class::<latent::LatentVecEnv>()?;
     m.add("PolicyError", py.get_type::<PolicyError>())?;
     m.add_function(wrap_pyfunction!(symmetry::measure_symmetry_breaking, m)?)?;
     m.add_class::<vector::VecEnv>()?;

@@ -7,7 +7,8 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use equigym_envs::{AutoresetMode, BatchEnv};
+use equigym_envs::batch::ActionDecoder;
+use equigym_envs::{AutoresetMode, BatchEnv, BatchMember};
 use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -16,7 +17,7 @@ use pyo3::types::{PyDict, PyList};
 use crate::{layout_list, to_py, Env, EquigymError};
 
 /// What `step` returns: (obs, rewards, terminated, truncated, success, reset, final_obs).
-type StepOut<'py> = (
+pub(crate) type StepOut<'py> = (
     Bound<'py, PyArray2<f32>>,
     Bound<'py, PyArray1<f64>>,
     Bound<'py, PyArray1<bool>>,
@@ -37,7 +38,10 @@ pub struct VecEnv {
     stepping: f64,
 }
 
-fn obs_array(batch: &BatchEnv, rows: impl Fn(usize) -> Option<Vec<f64>>) -> Array2<f32> {
+pub(crate) fn obs_array<E: BatchMember, D: ActionDecoder>(
+    batch: &BatchEnv<E, D>,
+    rows: impl Fn(usize) -> Option<Vec<f64>>,
+) -> Array2<f32> {
     let (n, d) = (batch.num_envs(), batch.observation_dim());
     let mut out = Array2::<f32>::zeros((n, d));
     for (i, mut row) in out.rows_mut().into_iter().enumerate() {
@@ -48,6 +52,33 @@ fn obs_array(batch: &BatchEnv, rows: impl Fn(usize) -> Option<Vec<f64>>) -> Arra
         }
     }
     out
+}
+
+/// A (B, dim) array as one row-major vector.
+pub(crate) fn flat_rows(a: &PyReadonlyArray2<'_, f64>) -> Vec<f64> {
+    match a.as_slice() {
+        Ok(s) => s.to_vec(),
+        Err(_) => a.as_array().iter().copied().collect(),
+    }
+}
+
+/// The arrays a batched step returns (see `VecEnv.step`).
+pub(crate) fn step_outputs<'py, E: BatchMember, D: ActionDecoder>(py: Python<'py>, b: &BatchEnv<E, D>) -> StepOut<'py> {
+    let n = b.num_envs();
+    let obs = obs_array(b, |i| Some(b.obs(i).to_vec()));
+    let steps: Vec<_> = (0..n).map(|i| b.last_step(i)).collect();
+    let reset: Vec<bool> = (0..n).map(|i| b.was_reset(i)).collect();
+    let final_obs = (b.autoreset_mode() == AutoresetMode::SameStep && reset.iter().any(|r| *r))
+        .then(|| obs_array(b, |i| b.final_obs(i).map(<[f64]>::to_vec)).into_pyarray(py));
+    (
+        obs.into_pyarray(py),
+        steps.iter().map(|s| s.reward).collect::<Vec<_>>().into_pyarray(py),
+        steps.iter().map(|s| s.terminated).collect::<Vec<_>>().into_pyarray(py),
+        steps.iter().map(|s| s.truncated).collect::<Vec<_>>().into_pyarray(py),
+        steps.iter().map(|s| s.success).collect::<Vec<_>>().into_pyarray(py),
+        reset.into_pyarray(py),
+        final_obs,
+    )
 }
 
 #[pymethods]
@@ -111,10 +142,7 @@ impl VecEnv {
         if shape != [n, dim] {
             return Err(EquigymError::new_err(format!("actions must have shape ({n}, {dim}), got {shape:?}")));
         }
-        let flat = match actions.as_slice() {
-            Ok(s) => s.to_vec(),
-            Err(_) => actions.as_array().iter().copied().collect(),
-        };
+        let flat = flat_rows(&actions);
         let inner = &mut self.inner;
         let (result, secs) = py.detach(|| {
             let start = Instant::now();
@@ -123,21 +151,7 @@ impl VecEnv {
         });
         self.stepping += secs;
         result.map_err(to_py)?;
-        let b = &self.inner;
-        let obs = obs_array(b, |i| Some(b.obs(i).to_vec()));
-        let steps: Vec<_> = (0..n).map(|i| b.last_step(i)).collect();
-        let reset: Vec<bool> = (0..n).map(|i| b.was_reset(i)).collect();
-        let final_obs = (b.autoreset_mode() == AutoresetMode::SameStep && reset.iter().any(|r| *r))
-            .then(|| obs_array(b, |i| b.final_obs(i).map(<[f64]>::to_vec)).into_pyarray(py));
-        Ok((
-            obs.into_pyarray(py),
-            steps.iter().map(|s| s.reward).collect::<Vec<_>>().into_pyarray(py),
-            steps.iter().map(|s| s.terminated).collect::<Vec<_>>().into_pyarray(py),
-            steps.iter().map(|s| s.truncated).collect::<Vec<_>>().into_pyarray(py),
-            steps.iter().map(|s| s.success).collect::<Vec<_>>().into_pyarray(py),
-            reset.into_pyarray(py),
-            final_obs,
-        ))
+        Ok(step_outputs(py, &self.inner))
     }
 
     /// Current observations, (B, obs_dim) float32.

@@ -19,9 +19,11 @@ from typing import Any
 import gymnasium
 import numpy as np
 from gymnasium import spaces
+from gymnasium.vector.utils import batch_space
 
 from equigym import _core
 from equigym.envs import physics_options
+from equigym.vector import NativeVectorEnv, _mode_name, check_vector_args
 
 #: gymnasium id -> task id.
 LATENT_ENV_IDS: dict[str, str] = {
@@ -109,7 +111,80 @@ class EquiLatentEnv(gymnasium.Env):
         self.core.set_state(bytes(state))
 
 
+class EquiLatentVectorEnv(NativeVectorEnv):
+    """B latent-action environments as one :class:`gymnasium.vector.VectorEnv`
+    (``gymnasium.make_vec("EquiLift-Latent-v0", num_envs=B)``).
+
+    One ``step`` is one call into Rust: the B latent actions are denoised together (one batched
+    DDIM, rows split across the thread pool), then the B chunks run in parallel. Each row's
+    chunk is bit for bit what a single :class:`EquiLatentEnv` makes of it, so a vector env and B
+    single envs with the same seeds and latent actions give the same rollouts. Auto-reset,
+    seeding and ``reset_mask`` are those of :class:`equigym.vector.EquiVectorEnv`;
+    ``info["executed"]`` gives the primitive steps each sub-environment ran.
+
+    Args: ``task``, ``num_envs``, ``threads`` (0: one per core), ``autoreset_mode``, and the
+    options of :class:`EquiLatentEnv` (``policy``, ``bound``, ``ddim_steps``, ``controller``,
+    ``joint_limits``, ...). ``max_episode_steps`` caps the horizon (primitive steps).
+    """
+
+    def __init__(
+        self,
+        task: str = "lift",
+        num_envs: int = 1,
+        *,
+        policy: Any = None,
+        bound: float = 1.5,
+        ddim_steps: int | None = None,
+        threads: int = 0,
+        autoreset_mode: Any = "next_step",
+        max_episode_steps: int | None = None,
+        render_mode: str | None = None,
+        controller: str = "joint",
+        **env_kwargs: Any,
+    ) -> None:
+        if render_mode is not None:
+            raise ValueError("latent vector environments do not render")
+        check_vector_args(num_envs, threads)
+        mode = _mode_name(autoreset_mode)
+        env_kwargs["physics"] = physics_options(env_kwargs.get("physics"), controller)
+        if max_episode_steps is not None:
+            h = env_kwargs.get("horizon")
+            env_kwargs["horizon"] = max_episode_steps if h is None else min(h, max_episode_steps)
+        if policy is None:
+            policy = shipped_policy(task)
+        if isinstance(policy, Path):
+            policy = str(policy)
+        self.core = _core.LatentVecEnv(
+            task, policy, int(num_envs), threads=int(threads), autoreset_mode=mode, bound=bound, ddim_steps=ddim_steps, **env_kwargs
+        )
+        self._init_batch(num_envs, mode)
+        self.chunk_len = self.core.chunk_len
+        dim = self.core.latent_dim
+        self.single_observation_space = spaces.Box(-np.inf, np.inf, shape=(self.core.observation_dim,), dtype=np.float32)
+        self.single_action_space = spaces.Box(-bound, bound, shape=(dim,), dtype=np.float32)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+
+    def _to_core(self, a: np.ndarray) -> np.ndarray:
+        if a.shape != self.action_space.shape:
+            raise ValueError(f"latent actions must have shape {self.action_space.shape}, got {a.shape}")
+        return np.ascontiguousarray(a, dtype=np.float64)
+
+    def _step_info(self, infos: dict[str, Any]) -> None:
+        infos["executed"] = self.core.executed()
+        infos["_executed"] = self._all
+
+    def last_chunks(self) -> np.ndarray:
+        """The (B, chunk_len, 10) absolute actions the last step executed."""
+        return self.core.last_chunks().reshape(self.num_envs, self.chunk_len, 10)
+
+
 def register_latent_envs() -> None:
     for env_id, task in LATENT_ENV_IDS.items():
         if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point="equigym.latent:EquiLatentEnv", kwargs={"task": task})
+            gymnasium.register(
+                id=env_id,
+                entry_point="equigym.latent:EquiLatentEnv",
+                vector_entry_point="equigym.latent:EquiLatentVectorEnv",
+                kwargs={"task": task},
+            )

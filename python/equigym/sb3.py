@@ -4,6 +4,7 @@
 >>> from equigym.sb3 import EquiVecEnv
 >>> venv = EquiVecEnv("EquiLift-v0", num_envs=4, action_mode="normalized", reward="dense")
 >>> SAC("MlpPolicy", venv).learn(10_000)
+>>> latent = EquiVecEnv("EquiLift-Latent-v0", num_envs=4)   # DSRL's latent-noise MDP, batched DDIM
 
 All B environments step in one Rust call (see :mod:`equigym.vector`). SB3 expects an episode
 that ends to be reset within the same step, so the adapter runs the Rust batch with
@@ -26,7 +27,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from equigym.vector import EquiVectorEnv
+from equigym.vector import NativeVectorEnv
 
 try:
     from stable_baselines3.common.vec_env import VecEnv as _SB3VecEnv
@@ -39,8 +40,8 @@ else:
 __all__ = ["EquiVecEnv"]
 
 
-def _vector_env(env_id_or_env: Any, num_envs: int, kwargs: dict[str, Any]) -> EquiVectorEnv:
-    if isinstance(env_id_or_env, EquiVectorEnv):
+def _vector_env(env_id_or_env: Any, num_envs: int, kwargs: dict[str, Any]) -> NativeVectorEnv:
+    if isinstance(env_id_or_env, NativeVectorEnv):
         if kwargs:
             raise ValueError("keyword arguments are only used when building the vector env from an id")
         if env_id_or_env.autoreset_mode != "same_step":
@@ -54,7 +55,7 @@ def _vector_env(env_id_or_env: Any, num_envs: int, kwargs: dict[str, Any]) -> Eq
     kwargs = dict(kwargs)
     kwargs["autoreset_mode"] = "same_step"
     env = gymnasium.make_vec(env_id_or_env, num_envs=num_envs, vectorization_mode="vector_entry_point", **kwargs)
-    if not isinstance(env.unwrapped, EquiVectorEnv):
+    if not isinstance(env.unwrapped, NativeVectorEnv):
         raise ValueError(f"{env_id_or_env!r} is not an equigym environment id")
     return env.unwrapped
 
@@ -76,8 +77,8 @@ else:
         """An equigym vector env as a Stable-Baselines3 ``VecEnv``.
 
         Args:
-            env: a gymnasium id (``"EquiLift-v0"``, ...) or an :class:`EquiVectorEnv` made with
-                ``autoreset_mode="same_step"``.
+            env: a gymnasium id (``"EquiLift-v0"``, ``"EquiLift-Latent-v0"``, ...) or an equigym
+                vector env made with ``autoreset_mode="same_step"``.
             num_envs: number of sub-environments (with an id).
             **kwargs: options of the environment (``reward``, ``action_mode``, ``threads``, ``horizon``, ...).
         """
@@ -112,6 +113,9 @@ else:
             dones = terminated | truncated
             success = info["success"]
             infos: list[dict[str, Any]] = [{"is_success": bool(s)} for s in success]
+            if "executed" in info:  # latent-action envs: primitive steps run by each latent step
+                for i, n in enumerate(info["executed"]):
+                    infos[i]["executed"] = int(n)
             if dones.any():
                 final = info["final_obs"]
                 for i in np.flatnonzero(dones):

@@ -61,89 +61,21 @@ def _mode_name(mode: Any) -> str:
     raise ValueError(f"autoreset_mode must be 'next_step' or 'same_step' (or a gymnasium AutoresetMode), got {mode!r}")
 
 
-class EquiVectorEnv(VectorEnv):
-    """``num_envs`` copies of one equigym task as a :class:`gymnasium.vector.VectorEnv`.
-
-    Args:
-        task: Rust task id (``"lift"``, ``"stack"``, ``"square"``).
-        num_envs: number of sub-environments B.
-        threads: size of the Rust thread pool (0: one thread per core).
-        autoreset_mode: ``"next_step"`` (default) or ``"same_step"``, or a ``gymnasium.vector.AutoresetMode``.
-        max_episode_steps: truncation horizon (``gymnasium.make_vec`` passes the registered 400);
-            the smaller of this and ``horizon`` applies.
-        reward, action_mode, joint_limits, urdf, init_joint_noise, horizon, physics, ranges, variant:
-            as for :class:`equigym.EquiEnv`.
-    """
+class NativeVectorEnv(VectorEnv):
+    """What every equigym vector environment shares: a Rust batch in ``self.core`` (``reset``,
+    ``step``, ``episode_seeds``), seeding, ``reset_mask`` and the info dictionaries. Subclasses
+    build the core and the spaces and say how actions reach Rust (:meth:`_to_core`)."""
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP if AutoresetMode else "NextStep"}
     render_mode = None
+    core: Any
 
-    def __init__(
-        self,
-        task: str = "lift",
-        num_envs: int = 1,
-        *,
-        threads: int = 0,
-        autoreset_mode: Any = "next_step",
-        max_episode_steps: int | None = None,
-        render_mode: str | None = None,
-        reward: str = "sparse",
-        action_mode: str = "absolute",
-        joint_limits: bool = True,
-        urdf: str | None = None,
-        init_joint_noise: float = 0.02,
-        horizon: int | None = None,
-        physics: dict[str, float] | None = None,
-        ranges: dict[str, tuple[float, float]] | None = None,
-        variant: str | None = None,
-        controller: str = "joint",
-    ) -> None:
-        physics = physics_options(physics, controller)
-        if render_mode is not None:
-            raise ValueError("EquiVectorEnv does not render; use gymnasium.make(id, render_mode='rgb_array') per env")
-        if action_mode not in _ACTION_MODES:
-            raise ValueError(f"action_mode must be one of {_ACTION_MODES}, got {action_mode!r}")
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
-            raise ValueError(f"threads must be a non-negative integer (0: one per core), got {threads!r}")
-        mode = _mode_name(autoreset_mode)
-        if max_episode_steps is not None:
-            horizon = max_episode_steps if horizon is None else min(horizon, max_episode_steps)
-        self.core = _core.VecEnv(
-            task,
-            int(num_envs),
-            threads=int(threads),
-            autoreset_mode=mode,
-            reward=reward,
-            urdf=None if urdf is None else str(urdf),
-            joint_limits=joint_limits,
-            init_joint_noise=init_joint_noise,
-            horizon=horizon,
-            physics=physics,
-            ranges=ranges,
-            variant=variant,
-        )
+    def _init_batch(self, num_envs: int, mode: str) -> None:
         self.num_envs = int(num_envs)
-        self.action_mode = action_mode
         self.metadata = {"autoreset_mode": AutoresetMode(_MODES[mode]) if AutoresetMode else _MODES[mode]}
-        self._low = self.core.action_low
-        self._high = self.core.action_high
-        self._scale = 0.5 * (self._high - self._low)
-        dim = self.core.observation_dim
-        self.single_observation_space = spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float32)
-        if action_mode == "absolute":
-            self.single_action_space = spaces.Box(
-                self._low.astype(np.float32), self._high.astype(np.float32), dtype=np.float32
-            )
-        else:
-            self.single_action_space = spaces.Box(-1.0, 1.0, shape=(10,), dtype=np.float32)
-        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
-        self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._all = np.ones(self.num_envs, dtype=bool)
         self._needs_reset = True
 
-    # -- metadata --------------------------------------------------------------------------
     @property
     def threads(self) -> int:
         """Threads of the Rust pool that steps the sub-environments."""
@@ -158,24 +90,10 @@ class EquiVectorEnv(VectorEnv):
     def horizon(self) -> int:
         return self.core.horizon
 
-    @property
-    def observation_fields(self) -> dict[str, slice]:
-        """Observation field name -> slice (of one row)."""
-        return {f["name"]: slice(f["start"], f["start"] + f["len"]) for f in self.core.observation_layout}
-
-    @property
-    def observation_layout(self) -> list[dict[str, Any]]:
-        return self.core.observation_layout
-
-    @property
-    def action_layout(self) -> list[dict[str, Any]]:
-        return self.core.action_layout
-
     def episode_seeds(self) -> np.ndarray:
-        """Seed of each sub-environment's current episode (``EquiEnv.reset(seed)`` replays it)."""
+        """Seed of each sub-environment's current episode (a single env's ``reset(seed)`` replays it)."""
         return self.core.episode_seeds()
 
-    # -- gymnasium API ---------------------------------------------------------------------
     def reset(self, *, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None):
         n = self.num_envs
         if seed is None:
@@ -208,21 +126,24 @@ class EquiVectorEnv(VectorEnv):
         reset = self._all if mask is None else np.asarray(mask)
         return obs, {"episode_seed": self.core.episode_seeds(), "_episode_seed": reset.copy()}
 
+    def _to_core(self, actions: Any) -> np.ndarray:
+        """Check the batch of actions and convert it to the C-contiguous float64 array Rust takes."""
+        raise NotImplementedError
+
+    def _step_info(self, infos: dict[str, Any]) -> None:
+        """Add subclass-specific entries to a step's info dictionary."""
+
     def step(self, actions):
         if self._needs_reset:
             raise gymnasium.error.ResetNeeded("Cannot call step() before reset()")
         a = np.asarray(actions)
         if a.dtype.kind not in "fiu":
             raise TypeError(f"actions must be a numeric array, got dtype {a.dtype}")
-        if a.shape != (self.num_envs, 10):
-            raise ValueError(f"actions must have shape ({self.num_envs}, 10), got {a.shape}")
-        if self.action_mode == "normalized":
-            a = self._low + (np.clip(a, -1.0, 1.0) + 1.0) * self._scale
-        elif a.dtype != np.float64 or not a.flags.c_contiguous:
-            a = np.ascontiguousarray(a, dtype=np.float64)
+        a = self._to_core(a)
         # NaN / infinity is rejected in Rust (ValueError naming the sub-environment) before anything steps.
         obs, rewards, terminated, truncated, success, reset, final_obs = self.core.step(a)
         infos: dict[str, Any] = {"success": success, "_success": self._all, "is_success": success, "_is_success": self._all}
+        self._step_info(infos)
         if reset.any():
             infos["episode_seed"] = self.core.episode_seeds()
             infos["_episode_seed"] = reset
@@ -236,6 +157,109 @@ class EquiVectorEnv(VectorEnv):
 
     def close_extras(self, **kwargs: Any) -> None:
         pass
+
+
+def check_vector_args(num_envs: Any, threads: Any) -> None:
+    if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+        raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
+        raise ValueError(f"threads must be a non-negative integer (0: one per core), got {threads!r}")
+
+
+class EquiVectorEnv(NativeVectorEnv):
+    """``num_envs`` copies of one equigym task as a :class:`gymnasium.vector.VectorEnv`.
+
+    Args:
+        task: Rust task id (``"lift"``, ``"stack"``, ``"square"``).
+        num_envs: number of sub-environments B.
+        threads: size of the Rust thread pool (0: one thread per core).
+        autoreset_mode: ``"next_step"`` (default) or ``"same_step"``, or a ``gymnasium.vector.AutoresetMode``.
+        max_episode_steps: truncation horizon (``gymnasium.make_vec`` passes the registered 400);
+            the smaller of this and ``horizon`` applies.
+        reward, action_mode, joint_limits, urdf, init_joint_noise, horizon, physics, ranges, variant:
+            as for :class:`equigym.EquiEnv`.
+    """
+
+    def __init__(
+        self,
+        task: str = "lift",
+        num_envs: int = 1,
+        *,
+        threads: int = 0,
+        autoreset_mode: Any = "next_step",
+        max_episode_steps: int | None = None,
+        render_mode: str | None = None,
+        reward: str = "sparse",
+        action_mode: str = "absolute",
+        joint_limits: bool = True,
+        urdf: str | None = None,
+        init_joint_noise: float = 0.02,
+        horizon: int | None = None,
+        physics: dict[str, float] | None = None,
+        ranges: dict[str, tuple[float, float]] | None = None,
+        variant: str | None = None,
+        controller: str = "joint",
+    ) -> None:
+        physics = physics_options(physics, controller)
+        if render_mode is not None:
+            raise ValueError("EquiVectorEnv does not render; use gymnasium.make(id, render_mode='rgb_array') per env")
+        if action_mode not in _ACTION_MODES:
+            raise ValueError(f"action_mode must be one of {_ACTION_MODES}, got {action_mode!r}")
+        check_vector_args(num_envs, threads)
+        mode = _mode_name(autoreset_mode)
+        if max_episode_steps is not None:
+            horizon = max_episode_steps if horizon is None else min(horizon, max_episode_steps)
+        self.core = _core.VecEnv(
+            task,
+            int(num_envs),
+            threads=int(threads),
+            autoreset_mode=mode,
+            reward=reward,
+            urdf=None if urdf is None else str(urdf),
+            joint_limits=joint_limits,
+            init_joint_noise=init_joint_noise,
+            horizon=horizon,
+            physics=physics,
+            ranges=ranges,
+            variant=variant,
+        )
+        self._init_batch(num_envs, mode)
+        self.action_mode = action_mode
+        self._low = self.core.action_low
+        self._high = self.core.action_high
+        self._scale = 0.5 * (self._high - self._low)
+        dim = self.core.observation_dim
+        self.single_observation_space = spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float32)
+        if action_mode == "absolute":
+            self.single_action_space = spaces.Box(
+                self._low.astype(np.float32), self._high.astype(np.float32), dtype=np.float32
+            )
+        else:
+            self.single_action_space = spaces.Box(-1.0, 1.0, shape=(10,), dtype=np.float32)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+
+    # -- metadata --------------------------------------------------------------------------
+    @property
+    def observation_fields(self) -> dict[str, slice]:
+        """Observation field name -> slice (of one row)."""
+        return {f["name"]: slice(f["start"], f["start"] + f["len"]) for f in self.core.observation_layout}
+
+    @property
+    def observation_layout(self) -> list[dict[str, Any]]:
+        return self.core.observation_layout
+
+    @property
+    def action_layout(self) -> list[dict[str, Any]]:
+        return self.core.action_layout
+
+    # -- gymnasium API ---------------------------------------------------------------------
+    def _to_core(self, a: np.ndarray) -> np.ndarray:
+        if a.shape != (self.num_envs, 10):
+            raise ValueError(f"actions must have shape ({self.num_envs}, 10), got {a.shape}")
+        if self.action_mode == "normalized":
+            return self._low + (np.clip(a, -1.0, 1.0) + 1.0) * self._scale
+        return np.ascontiguousarray(a, dtype=np.float64)
 
     # -- helpers ---------------------------------------------------------------------------
     def normalize_action(self, absolute: np.ndarray) -> np.ndarray:

@@ -343,33 +343,30 @@ impl DiffusionPolicy {
             for r in 0..rows {
                 b[r * l.n_out..(r + 1) * l.n_out].copy_from_slice(&l.bias);
             }
-            if rows <= 4 {
-                // Small batches: plain dot products (GEMM would repack the weights every call).
-                for r in 0..rows {
-                    let x = &a[r * l.n_in..(r + 1) * l.n_in];
-                    for (o, w) in l.weight.chunks_exact(l.n_in).enumerate() {
-                        b[r * l.n_out + o] += dot(w, x);
+            // Every output is dot(weight row, input row) with one fixed summation order, so a
+            // row's result is bit for bit the same whatever the batch size or how a batch is
+            // split across threads (a single env and a vector env give identical chunks).
+            // Four rows share each weight row while it is in cache.
+            let mut r = 0;
+            while r + 4 <= rows {
+                let x = [
+                    &a[r * l.n_in..(r + 1) * l.n_in],
+                    &a[(r + 1) * l.n_in..(r + 2) * l.n_in],
+                    &a[(r + 2) * l.n_in..(r + 3) * l.n_in],
+                    &a[(r + 3) * l.n_in..(r + 4) * l.n_in],
+                ];
+                for (o, w) in l.weight.chunks_exact(l.n_in).enumerate() {
+                    let d = dot4(w, x);
+                    for k in 0..4 {
+                        b[(r + k) * l.n_out + o] += d[k];
                     }
                 }
-            } else {
-                // b (rows x out) += a (rows x in) * W^T (in x out); W is row-major (out x in).
-                unsafe {
-                    matrixmultiply::dgemm(
-                        rows,
-                        l.n_in,
-                        l.n_out,
-                        1.0,
-                        a.as_ptr(),
-                        l.n_in as isize,
-                        1,
-                        l.weight.as_ptr(),
-                        1,
-                        l.n_in as isize,
-                        1.0,
-                        b.as_mut_ptr(),
-                        l.n_out as isize,
-                        1,
-                    );
+                r += 4;
+            }
+            for r in r..rows {
+                let x = &a[r * l.n_in..(r + 1) * l.n_in];
+                for (o, w) in l.weight.chunks_exact(l.n_in).enumerate() {
+                    b[r * l.n_out + o] += dot(w, x);
                 }
             }
             if i < last {
@@ -379,6 +376,32 @@ impl DiffusionPolicy {
         }
         out.copy_from_slice(&a[..out.len()]);
     }
+}
+
+/// Four dot products of `w` with four rows, each summed exactly as [`dot`] sums it.
+fn dot4(w: &[f64], x: [&[f64]; 4]) -> [f64; 4] {
+    let mut acc = [[0.0f64; 8]; 4];
+    let n = w.len() / 8 * 8;
+    let mut i = 0;
+    while i < n {
+        let wc = &w[i..i + 8];
+        for (row, acc) in x.iter().zip(acc.iter_mut()) {
+            let xc = &row[i..i + 8];
+            for k in 0..8 {
+                acc[k] += wc[k] * xc[k];
+            }
+        }
+        i += 8;
+    }
+    let mut out = [0.0; 4];
+    for ((o, acc), row) in out.iter_mut().zip(&acc).zip(x.iter()) {
+        let mut sum = acc.iter().sum::<f64>();
+        for (a, b) in w[n..].iter().zip(&row[n..]) {
+            sum += a * b;
+        }
+        *o = sum;
+    }
+    out
 }
 
 /// Dot product with eight independent accumulators (so the compiler can vectorise it).

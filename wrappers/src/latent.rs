@@ -8,9 +8,11 @@
 
 use std::sync::Arc;
 
+use equigym_envs::batch::ActionDecoder;
 use equigym_envs::error::check_finite;
 use equigym_envs::tasks::Evaluation;
-use equigym_envs::{Env, ACTION_DIM};
+use equigym_envs::{AutoresetMode, BatchEnv, BatchMember, Env, MemberStep, ACTION_DIM};
+use rayon::prelude::*;
 
 use crate::edp::DiffusionPolicy;
 use crate::error::Result;
@@ -40,6 +42,7 @@ pub struct LatentEnv {
     bound: f64,
     ddim_steps: usize,
     chunk: Vec<f64>,
+    last_executed: usize,
 }
 
 impl LatentEnv {
@@ -71,6 +74,7 @@ impl LatentEnv {
             bound,
             ddim_steps,
             chunk,
+            last_executed: 0,
         })
     }
 
@@ -97,7 +101,13 @@ impl LatentEnv {
         &self.chunk
     }
 
+    /// Primitive steps the last latent step executed (the chunk length, or fewer at the horizon).
+    pub fn last_executed(&self) -> usize {
+        self.last_executed
+    }
+
     pub fn reset(&mut self, seed: u64) -> Result<Vec<f64>> {
+        self.last_executed = 0;
         Ok(self.env.reset(seed)?.to_vec())
     }
 
@@ -151,39 +161,120 @@ impl LatentEnv {
                 break;
             }
         }
+        self.last_executed = out.executed;
         Ok(out)
     }
 }
 
-/// Step many latent environments with one batched denoising call. They must share one
-/// policy (the same `Arc`) and the same DDIM steps.
+/// Step many latent environments with one batched denoising call (no auto-reset; see
+/// [`LatentBatchEnv`] for the vector environment). They must share one policy (the same `Arc`)
+/// and the same DDIM steps.
 pub fn step_batch(envs: &mut [LatentEnv], latents: &[f64]) -> Result<Vec<LatentStep>> {
     let Some(first) = envs.first() else {
         return Ok(Vec::new());
     };
-    let policy = first.policy.clone();
-    let steps = first.ddim_steps;
-    if envs
-        .iter()
-        .any(|e| !Arc::ptr_eq(&e.policy, &policy) || e.ddim_steps != steps)
-    {
-        return Err(equigym_envs::EnvError::InvalidConfig(
-            "batched latent steps need one shared policy and DDIM setting".into(),
-        )
-        .into());
-    }
-    let (ad, od) = (policy.action_dim(), policy.obs_dim());
+    let decoder = LatentDecoder::shared_by(envs)?;
+    let ad = first.latent_dim();
     check_finite("latent actions", latents, envs.len() * ad)?;
-    let mut obs = Vec::with_capacity(envs.len() * od);
-    let mut w = Vec::with_capacity(latents.len());
-    for (e, l) in envs.iter_mut().zip(latents.chunks_exact(ad)) {
-        obs.extend_from_slice(e.env.observe());
-        w.extend(l.iter().map(|v| v.clamp(-e.bound, e.bound)));
-    }
-    let mut chunks = vec![0.0; w.len()];
-    policy.sample(&obs, &w, steps, &mut chunks)?;
+    let obs: Vec<f64> = envs.iter_mut().flat_map(|e| e.env.observe().to_vec()).collect();
+    let mut chunks = vec![0.0; latents.len()];
+    decoder.decode_rows(&obs, latents, &mut chunks)?;
     envs.iter_mut()
         .zip(chunks.chunks_exact(ad))
         .map(|(e, c)| e.execute(c.to_vec()))
         .collect()
+}
+
+// -- the latent vector environment ------------------------------------------------------------
+
+/// The batch member is the latent environment running an already-decoded chunk; the batch's
+/// [`LatentDecoder`] turns all B latent actions into chunks with one batched DDIM first.
+impl BatchMember for LatentEnv {
+    fn observation_dim(&self) -> usize {
+        self.env.observation_layout().dim()
+    }
+    fn action_dim(&self) -> usize {
+        self.latent_dim()
+    }
+    fn reset_into(&mut self, seed: u64, obs: &mut [f64]) -> equigym_envs::Result<()> {
+        // last_executed stays: in same-step auto-reset it still describes the step that ended.
+        obs.copy_from_slice(self.env.reset(seed)?);
+        Ok(())
+    }
+    fn step_into(&mut self, chunk: &[f64], obs: &mut [f64]) -> equigym_envs::Result<MemberStep> {
+        let r = self.execute(chunk.to_vec()).map_err(into_env_error)?;
+        obs.copy_from_slice(self.env.observe());
+        Ok(MemberStep { reward: r.reward, terminated: r.terminated, truncated: r.truncated, success: r.success })
+    }
+}
+
+/// Latent noise -> action chunks for a whole batch: clip to the bound, then deterministic DDIM
+/// with the shared policy, the rows split across the batch's threads. Each row's chunk is bit for
+/// bit what a single [`LatentEnv`] makes of it.
+pub struct LatentDecoder {
+    policy: Arc<DiffusionPolicy>,
+    bound: f64,
+    ddim_steps: usize,
+}
+
+impl LatentDecoder {
+    /// The decoder of environments that share one policy, bound and DDIM setting.
+    pub fn shared_by(envs: &[LatentEnv]) -> Result<Self> {
+        let first = envs.first().ok_or_else(|| {
+            equigym_envs::EnvError::InvalidConfig("a batch needs at least one environment".into())
+        })?;
+        if envs.iter().any(|e| {
+            !Arc::ptr_eq(&e.policy, &first.policy) || e.ddim_steps != first.ddim_steps || e.bound != first.bound
+        }) {
+            return Err(equigym_envs::EnvError::InvalidConfig(
+                "batched latent environments need one shared policy, bound and DDIM setting".into(),
+            )
+            .into());
+        }
+        Ok(Self { policy: first.policy.clone(), bound: first.bound, ddim_steps: first.ddim_steps })
+    }
+
+    fn decode_rows(&self, obs: &[f64], latents: &[f64], out: &mut [f64]) -> Result<()> {
+        let w: Vec<f64> = latents.iter().map(|v| v.clamp(-self.bound, self.bound)).collect();
+        self.policy.sample(obs, &w, self.ddim_steps, out)
+    }
+}
+
+impl ActionDecoder for LatentDecoder {
+    fn input_dim(&self) -> usize {
+        self.policy.action_dim()
+    }
+    fn decode(&mut self, pool: &rayon::ThreadPool, obs: &[f64], input: &[f64], output: &mut [f64]) -> equigym_envs::Result<()> {
+        let (od, ad) = (self.policy.obs_dim(), self.policy.action_dim());
+        let rows = input.len() / ad.max(1);
+        // Whole rows per thread, in blocks of four (the kernel's row block).
+        let per = rows.div_ceil(pool.current_num_threads()).div_ceil(4).max(1) * 4;
+        let this = &*self;
+        pool.install(|| {
+            output
+                .par_chunks_mut(per * ad)
+                .zip(input.par_chunks(per * ad))
+                .zip(obs.par_chunks(per * od))
+                .try_for_each(|((out, w), o)| this.decode_rows(o, w, out))
+        })
+        .map_err(into_env_error)
+    }
+}
+
+/// The batch traits speak `EnvError`; a policy error keeps its message.
+fn into_env_error(e: crate::Error) -> equigym_envs::EnvError {
+    match e {
+        crate::Error::Env(e) => e,
+        other => equigym_envs::EnvError::InvalidConfig(other.to_string()),
+    }
+}
+
+/// B latent-action environments stepped per call: one batched DDIM, then the chunks run in
+/// parallel, with the auto-reset and seeding rules of [`BatchEnv`].
+pub type LatentBatchEnv = BatchEnv<LatentEnv, LatentDecoder>;
+
+/// A [`LatentBatchEnv`] over `envs` (one shared policy) on `threads` threads (0: one per core).
+pub fn latent_batch(envs: Vec<LatentEnv>, threads: usize, mode: AutoresetMode) -> Result<LatentBatchEnv> {
+    let decoder = LatentDecoder::shared_by(&envs)?;
+    Ok(BatchEnv::with_decoder(envs, decoder, threads, mode)?)
 }

@@ -34,6 +34,6 @@ pub use edp::DiffusionPolicy;
 pub use equigym_envs as envs;
 pub use error::{Error, Result};
 pub use group::{Group, PlanarRotation};
-pub use latent::{LatentEnv, LatentStep, DEFAULT_LATENT_BOUND};
+pub use latent::{latent_batch, LatentBatchEnv, LatentDecoder, LatentEnv, LatentStep, DEFAULT_LATENT_BOUND};
 pub use representation::{Block, Representation};
 pub use symmetry::{transform_state, TaskSymmetry, DEFAULT_CHUNK_LEN, ROTATION_CENTRE};

@@ -19,17 +19,37 @@ fn bytes_f64(v: &[f64]) -> Vec<u8> {
 
 /// A one-layer policy whose noise prediction is the constant `eps` (zero weights).
 fn constant_policy(eps: f64, format: &str) -> Vec<u8> {
+    let layer = (vec![0.0; CHUNK * (OBS + CHUNK + EMB)], vec![eps; CHUNK], CHUNK, OBS + CHUNK + EMB);
+    policy_bytes(vec![layer], format)
+}
+
+/// A two-layer ReLU policy with fixed pseudo-random weights (every row's arithmetic matters).
+fn random_policy() -> Vec<u8> {
+    let (inp, hidden) = (OBS + CHUNK + EMB, 37);
+    let w = |n: usize, salt: f64| (0..n).map(|i| 0.3 * ((i as f64) * 0.7548 + salt).sin()).collect::<Vec<f64>>();
+    policy_bytes(
+        vec![(w(hidden * inp, 0.1), w(hidden, 0.2), hidden, inp), (w(CHUNK * hidden, 0.3), w(CHUNK, 0.4), CHUNK, hidden)],
+        "equigym-edp-1",
+    )
+}
+
+/// An exported policy file from (weight, bias, n_out, n_in) layers.
+fn policy_bytes(layers: Vec<(Vec<f64>, Vec<f64>, usize, usize)>, format: &str) -> Vec<u8> {
     let abar: Vec<f64> = (0..T).map(|t| 1.0 - 0.09 * t as f64).collect();
+    let emb: Vec<f64> = (0..T * EMB).map(|i| (i as f64 * 0.3).cos()).collect();
     let mut tensors: Vec<(String, Vec<u8>, Vec<usize>)> = vec![
         ("alphas_cumprod".into(), bytes_f64(&abar), vec![T]),
-        ("time_embedding".into(), bytes_f64(&vec![0.0; T * EMB]), vec![T, EMB]),
+        ("time_embedding".into(), bytes_f64(&emb), vec![T, EMB]),
         ("obs_offset".into(), bytes_f64(&[0.0; OBS]), vec![OBS]),
         ("obs_scale".into(), bytes_f64(&[1.0; OBS]), vec![OBS]),
         ("action_offset".into(), bytes_f64(&[0.5; CHUNK]), vec![CHUNK]),
         ("action_scale".into(), bytes_f64(&[2.0; CHUNK]), vec![CHUNK]),
-        ("layer0.weight".into(), bytes_f64(&vec![0.0; CHUNK * (OBS + CHUNK + EMB)]), vec![CHUNK, OBS + CHUNK + EMB]),
-        ("layer0.bias".into(), bytes_f64(&[eps; CHUNK]), vec![CHUNK]),
     ];
+    let num_layers = layers.len().to_string();
+    for (k, (w, b, n_out, n_in)) in layers.into_iter().enumerate() {
+        tensors.push((format!("layer{k}.weight"), bytes_f64(&w), vec![n_out, n_in]));
+        tensors.push((format!("layer{k}.bias"), bytes_f64(&b), vec![n_out]));
+    }
     tensors.sort_by(|a, b| a.0.cmp(&b.0));
     let views: Vec<(String, TensorView)> =
         tensors.iter().map(|(n, d, s)| (n.clone(), TensorView::new(Dtype::F64, s.clone(), d).unwrap())).collect();
@@ -37,7 +57,7 @@ fn constant_policy(eps: f64, format: &str) -> Vec<u8> {
         ("format", format),
         ("task", "lift"),
         ("chunk_len", "4"),
-        ("num_layers", "1"),
+        ("num_layers", num_layers.as_str()),
         ("activation", "relu"),
         ("num_train_timesteps", "10"),
         ("ddim_steps", "5"),
@@ -105,5 +125,58 @@ fn batched_latent_steps_equal_single_ones() {
         assert_eq!(s.env().get_state().unwrap(), batch[k].env().get_state().unwrap());
         assert_eq!(r.executed, 4);
         assert!(r.reward >= -4.0 && r.reward <= 0.0);
+    }
+}
+
+#[test]
+fn latent_vector_env_equals_single_envs_for_any_thread_count() {
+    use equigym_envs::AutoresetMode;
+    use equigym_wrappers::latent::latent_batch;
+    let policy = std::sync::Arc::new(DiffusionPolicy::from_bytes(&random_policy(), "t").unwrap());
+    let config = || {
+        let mut c = EnvConfig::new("lift");
+        c.horizon = Some(12); // three latent steps per episode, so auto-resets happen
+        c
+    };
+    let make = || LatentEnv::new(Env::new(config()).unwrap(), policy.clone(), 1.5, 5).unwrap();
+    let n = 7; // not a multiple of the kernel's four-row block
+    let seeds: Vec<u64> = (0..n as u64).map(|k| 40 + k).collect();
+    let latents = |t: usize| -> Vec<f64> { (0..n * CHUNK).map(|i| 2.0 * ((i * 31 + t * 7) as f64 * 0.113).sin()).collect() };
+    // Reference: seven single environments; one episode of three latent steps each.
+    let mut singles: Vec<LatentEnv> = (0..n).map(|_| make()).collect();
+    let mut want = Vec::new();
+    for (k, e) in singles.iter_mut().enumerate() {
+        e.reset(seeds[k]).unwrap();
+    }
+    for t in 0..3 {
+        let w = latents(t);
+        want.push(
+            singles
+                .iter_mut()
+                .enumerate()
+                .map(|(k, e)| (e.step(&w[k * CHUNK..(k + 1) * CHUNK]).unwrap(), e.env_mut().observe().to_vec()))
+                .collect::<Vec<_>>(),
+        );
+    }
+    let final_states: Vec<Vec<u8>> = singles.iter().map(|e| e.env().get_state().unwrap()).collect();
+    for threads in [1, 2, 3] {
+        let mut batch = latent_batch((0..n).map(|_| make()).collect(), threads, AutoresetMode::NextStep).unwrap();
+        batch.reset(&seeds).unwrap();
+        for (t, want_t) in want.iter().enumerate() {
+            batch.step(&latents(t)).unwrap();
+            for (k, (w, obs)) in want_t.iter().enumerate() {
+                let got = batch.last_step(k);
+                let want = (w.reward, w.terminated, w.truncated, w.success);
+                assert_eq!((got.reward, got.terminated, got.truncated, got.success), want, "threads {threads}, step {t}, env {k}");
+                assert_eq!(batch.obs(k), &obs[..], "threads {threads}, step {t}, env {k}");
+            }
+        }
+        for k in 0..n {
+            assert_eq!(batch.env(k).unwrap().env().get_state().unwrap(), final_states[k], "threads {threads}, env {k}");
+            assert!(batch.last_step(k).truncated);
+        }
+        // The next step auto-resets every environment from its seed stream.
+        batch.step(&latents(9)).unwrap();
+        assert!((0..n).all(|k| batch.was_reset(k)));
     }
 }
