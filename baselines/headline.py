@@ -1,7 +1,7 @@
 """The headline experience: steer the shipped Lift EDP with Equi-DSRL for a few minutes and show
 what steering did (the README's main job).
 
-    python -m baselines.headline                       # 2 seeds x 12k env steps, ~15 min on 2 cores
+    python -m baselines.headline                       # 2 seeds x 10k env steps, ~10 min on 2 cores
     python -m baselines.headline --steps 40000 --seeds 0 1 2 --methods equi dsrl
 
 It measures the base policy alone (latent noise N(0, I)), runs the steering agents (resumable:
@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--task", default="lift", choices=sorted(steer.LATENT_IDS))
     p.add_argument("--methods", nargs="+", default=["equi"], choices=steer.METHODS)
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
-    p.add_argument("--steps", type=int, default=12_000, help="environment steps per run")
+    p.add_argument("--steps", type=int, default=10_000, help="environment steps per run")
     p.add_argument("--eval-every", type=int, default=2000)
     p.add_argument("--eval-episodes", type=int, default=50)
     p.add_argument("--ent-init", type=float, default=None)

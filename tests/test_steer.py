@@ -21,7 +21,7 @@ def rows(path):
         return list(csv.DictReader(f))
 
 
-@pytest.mark.parametrize("method", ["dsrl", "equi"])
+@pytest.mark.parametrize("method", ["dsrl", "equi", "approx", "sac"])
 def test_run_logs_resumes_and_reports(method, tmp_path):
     out = tmp_path / "runs"
     run_dir = steer.run(method, "lift", 0, 64, out, TINY, eval_every=32, eval_episodes=1, progress=False)
@@ -42,5 +42,5 @@ def test_run_logs_resumes_and_reports(method, tmp_path):
     assert 0.0 <= rate <= 1.0 and (out / "lift" / "base.json").exists()
     text = write_report(out, tmp_path / "report")
     assert "| lift | " in text and steer.METHODS and (tmp_path / "report" / "lift.png").exists()
-    label = {"dsrl": "DSRL", "equi": "Equi-DSRL"}[method]
+    label = {"dsrl": "DSRL", "equi": "Equi-DSRL", "approx": "Approx-Equi-DSRL", "sac": "SAC (raw actions)"}[method]
     assert label in text
