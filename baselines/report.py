@@ -57,7 +57,7 @@ def write_report(root: str | Path, out: str | Path, base: dict[str, float] | Non
                 rs = runs.get((t, m), [])
                 if rs:
                     steps = int(min(run["rows"][-1]["env_steps"] for run in rs))
-                    cells.append(f"{cell([stat([r['success_rate'] for r in run['rows']]) for run in rs])} ({len(rs)} seeds, {steps:,} steps)")
+                    cells.append(f"{cell([stat([r['success_rate'] for r in run['rows']]) for run in rs])} ({len(rs)} seed{'s' if len(rs) != 1 else ''}, {steps:,} steps)")
                 else:
                     cells.append("-")
             b = base.get(t)
@@ -87,11 +87,28 @@ def write_report(root: str | Path, out: str | Path, base: dict[str, float] | Non
     for t in tasks:
         fig, axes = plt.subplots(1, 2, figsize=(11, 4))
         for m in methods:
-            for k, run in enumerate(runs.get((t, m), [])):
+            # Thin lines: seeds; thick line and band: mean +- standard error over the seeds that
+            # reached each evaluation point (the paper's style).
+            color = f"C{methods.index(m)}"
+            by_step: dict[float, dict[str, list[float]]] = defaultdict(lambda: {"success_rate": [], "mean_q": []})
+            for run in runs.get((t, m), []):
                 x = [r["env_steps"] for r in run["rows"]]
-                kw = {"label": LABELS[m] if k == 0 else None, "color": f"C{methods.index(m)}", "alpha": 0.8}
-                axes[0].plot(x, [r["success_rate"] for r in run["rows"]], **kw)
-                axes[1].plot(x, [r["mean_q"] for r in run["rows"]], **kw)
+                for ax, key in zip(axes, ("success_rate", "mean_q")):
+                    ax.plot(x, [r[key] for r in run["rows"]], color=color, alpha=0.25, lw=0.8)
+                for r in run["rows"]:
+                    for key in ("success_rate", "mean_q"):
+                        if np.isfinite(r[key]):
+                            by_step[r["env_steps"]][key].append(r[key])
+            xs = sorted(by_step)
+            for ax, key in zip(axes, ("success_rate", "mean_q")):
+                pts = [(x, by_step[x][key]) for x in xs if by_step[x][key]]
+                if not pts:
+                    continue
+                px = np.array([p[0] for p in pts])
+                mean = np.array([np.mean(p[1]) for p in pts])
+                se = np.array([np.std(p[1], ddof=1) / np.sqrt(len(p[1])) if len(p[1]) > 1 else 0.0 for p in pts])
+                ax.plot(px, mean, color=color, lw=2, label=LABELS[m] if key == "success_rate" else None)
+                ax.fill_between(px, mean - se, mean + se, color=color, alpha=0.2)
         if t in base:
             axes[0].axhline(base[t], color="k", ls="--", lw=1, label="base policy")
         axes[0].set_ylabel("success rate")

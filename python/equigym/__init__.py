@@ -19,7 +19,7 @@ from equigym._core import (
 from equigym._core import Env as CoreEnv
 from equigym._core import DiffusionPolicy, Expert, PolicyError
 from equigym.envs import ENV_IDS, EquiEnv, register_envs
-from equigym.latent import LATENT_ENV_IDS, EquiLatentEnv, register_latent_envs
+from equigym.latent import LATENT_ENV_IDS, EquiLatentEnv, EquiLatentVectorEnv, register_latent_envs
 from equigym.rendering import save_gif
 from equigym.symmetry import Symmetry, measure_breaking
 from equigym.wrappers import SymmetryWrapper
@@ -32,6 +32,7 @@ __all__ = [
     "CoreEnv",
     "DiffusionPolicy",
     "EquiLatentEnv",
+    "EquiLatentVectorEnv",
     "LATENT_ENV_IDS",
     "PolicyError",
     "ENV_IDS",

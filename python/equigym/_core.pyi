@@ -227,3 +227,59 @@ class VecEnv:
     def observation_layout(self) -> list[dict[str, Any]]: ...
     @property
     def action_layout(self) -> list[dict[str, Any]]: ...
+
+class LatentVecEnv:
+    """B latent-action environments: one batched DDIM per step, then the chunks in parallel
+    (see ``equigym.latent.EquiLatentVectorEnv``)."""
+
+    def __init__(
+        self,
+        task: str,
+        policy: str | PathLike[str] | DiffusionPolicy,
+        num_envs: int,
+        *,
+        threads: int = 0,
+        autoreset_mode: str = "next_step",
+        bound: float = 1.5,
+        ddim_steps: int | None = None,
+        urdf: str | PathLike[str] | None = None,
+        joint_limits: bool = True,
+        init_joint_noise: float = 0.02,
+        horizon: int | None = None,
+        physics: dict[str, float] | None = None,
+        ranges: dict[str, tuple[float, float]] | None = None,
+        variant: str | None = None,
+    ) -> None: ...
+    def reset(self, seeds: list[int], mask: list[bool] | None = None) -> npt.NDArray[np.float32]: ...
+    def step(
+        self, latents: npt.NDArray[np.float64]
+    ) -> tuple[
+        npt.NDArray[np.float32],
+        npt.NDArray[np.float64],
+        npt.NDArray[np.bool_],
+        npt.NDArray[np.bool_],
+        npt.NDArray[np.bool_],
+        npt.NDArray[np.bool_],
+        npt.NDArray[np.float32] | None,
+    ]: ...
+    def executed(self) -> npt.NDArray[np.uint64]: ...
+    def last_chunks(self) -> npt.NDArray[np.float64]: ...
+    def observe(self) -> npt.NDArray[np.float32]: ...
+    def episode_seeds(self) -> npt.NDArray[np.uint64]: ...
+    stepping_seconds: float
+    @property
+    def num_envs(self) -> int: ...
+    @property
+    def threads(self) -> int: ...
+    @property
+    def autoreset_mode(self) -> str: ...
+    @property
+    def horizon(self) -> int: ...
+    @property
+    def observation_dim(self) -> int: ...
+    @property
+    def latent_dim(self) -> int: ...
+    @property
+    def chunk_len(self) -> int: ...
+    @property
+    def bound(self) -> float: ...
