@@ -455,6 +455,14 @@ def write_outputs(args, meta, single, pandagym, vector, latent=None, edp=None):
     log(f"wrote {args.out}" + (f", {png}" if has_plot else ""))
 
 
+def pin_first(cpus, t):
+    """Pin this process (and the threads it starts next) to the first t of ``cpus``."""
+    try:
+        os.sched_setaffinity(0, set(cpus[:t]) if len(cpus) >= t else set(cpus))
+    except (AttributeError, OSError):
+        pass
+
+
 def main():
     args = parse_args()
     if args.from_json:
@@ -501,11 +509,7 @@ def main():
     meta["load_parts"]["vector"] = peers.loadavg()
     vector = []
     for t in args.threads:
-        use = set(cpus[:t]) if len(cpus) >= t else set(cpus)
-        try:
-            os.sched_setaffinity(0, use)
-        except (AttributeError, OSError):
-            pass
+        pin_first(cpus, t)
         for b in args.batch_sizes:
             log(f"[vector] B={b} T={t} ...")
             v = peers.guarded(bench_vector, args.vector_task, b, t, args)
@@ -518,21 +522,14 @@ def main():
     if not args.no_latent:
         meta["load_parts"]["latent"] = peers.loadavg()
         for t in args.threads:
-            use = set(cpus[:t]) if len(cpus) >= t else set(cpus)
-            try:
-                os.sched_setaffinity(0, use)
-            except (AttributeError, OSError):
-                pass
+            pin_first(cpus, t)
             for b in args.latent_batch_sizes:
                 log(f"[latent] B={b} T={t} ...")
                 v = peers.guarded(bench_latent, b, t, args)
                 v.setdefault("B", b)
                 v.setdefault("threads", t)
                 latent.append(v)
-        try:
-            os.sched_setaffinity(0, {cpus[0]} if cpus else set())
-        except (AttributeError, OSError, IndexError):
-            pass
+        pin_first(cpus, 1)
         log("[edp] chunks/s, Rust vs PyTorch ...")
         edp = peers.guarded(bench_edp, args)
     meta["load_end"] = peers.loadavg()

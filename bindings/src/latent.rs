@@ -3,8 +3,6 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use std::time::Instant;
-
 use equigym_envs::AutoresetMode;
 use equigym_wrappers::latent::{latent_batch, LatentBatchEnv, LatentEnv as RustLatentEnv, DEFAULT_LATENT_BOUND};
 use equigym_wrappers::DiffusionPolicy as RustPolicy;
@@ -14,7 +12,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
 use crate::symmetry::sym_err;
-use crate::vector::{flat_rows, obs_array, step_outputs, StepOut};
+use crate::vector::{obs_array, reset_batch, step_batch, StepOut};
 use crate::{info_dict, to_py, Env, EquigymError};
 
 /// An exported equivariant diffusion policy, run in Rust (batched deterministic DDIM).
@@ -247,32 +245,12 @@ impl LatentVecEnv {
     /// Reset the environments (all, or those where `mask` is true), one seed each.
     #[pyo3(signature = (seeds, mask=None))]
     fn reset<'py>(&mut self, py: Python<'py>, seeds: Vec<u64>, mask: Option<Vec<bool>>) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let inner = &mut self.inner;
-        py.detach(|| match mask {
-            None => inner.reset(&seeds),
-            Some(mask) => inner.reset_masked(&seeds, &mask),
-        })
-        .map_err(to_py)?;
-        Ok(obs_array(&self.inner, |i| Some(self.inner.obs(i).to_vec())).into_pyarray(py))
+        reset_batch(py, &mut self.inner, seeds, mask)
     }
 
     /// Step with a (B, latent_dim) float64 array; returns what `VecEnv.step` returns.
     fn step<'py>(&mut self, py: Python<'py>, latents: PyReadonlyArray2<'py, f64>) -> PyResult<StepOut<'py>> {
-        let shape = latents.shape();
-        let (n, dim) = (self.inner.num_envs(), self.inner.action_dim());
-        if shape != [n, dim] {
-            return Err(EquigymError::new_err(format!("latent actions must have shape ({n}, {dim}), got {shape:?}")));
-        }
-        let flat = flat_rows(&latents);
-        let inner = &mut self.inner;
-        let (result, secs) = py.detach(|| {
-            let start = Instant::now();
-            let result = inner.step(&flat);
-            (result, start.elapsed().as_secs_f64())
-        });
-        self.stepping += secs;
-        result.map_err(to_py)?;
-        Ok(step_outputs(py, &self.inner))
+        step_batch(py, &mut self.inner, "latent actions", latents, &mut self.stepping)
     }
 
     /// Primitive steps each environment's last latent step executed (0 where it was reset).

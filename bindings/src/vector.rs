@@ -55,15 +55,55 @@ pub(crate) fn obs_array<E: BatchMember, D: ActionDecoder>(
 }
 
 /// A (B, dim) array as one row-major vector.
-pub(crate) fn flat_rows(a: &PyReadonlyArray2<'_, f64>) -> Vec<f64> {
+fn flat_rows(a: &PyReadonlyArray2<'_, f64>) -> Vec<f64> {
     match a.as_slice() {
         Ok(s) => s.to_vec(),
         Err(_) => a.as_array().iter().copied().collect(),
     }
 }
 
+/// Reset a batch (all, or where `mask` is true) with the GIL released; the observations.
+pub(crate) fn reset_batch<'py, E: BatchMember, D: ActionDecoder>(
+    py: Python<'py>,
+    batch: &mut BatchEnv<E, D>,
+    seeds: Vec<u64>,
+    mask: Option<Vec<bool>>,
+) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    py.detach(|| match mask {
+        None => batch.reset(&seeds),
+        Some(mask) => batch.reset_masked(&seeds, &mask),
+    })
+    .map_err(to_py)?;
+    Ok(obs_array(batch, |i| Some(batch.obs(i).to_vec())).into_pyarray(py))
+}
+
+/// Step a batch with a (B, action_dim) array (`what` names the actions in the shape error) with
+/// the GIL released, adding the seconds spent in Rust to `stepping`.
+pub(crate) fn step_batch<'py, E: BatchMember, D: ActionDecoder>(
+    py: Python<'py>,
+    batch: &mut BatchEnv<E, D>,
+    what: &str,
+    actions: PyReadonlyArray2<'py, f64>,
+    stepping: &mut f64,
+) -> PyResult<StepOut<'py>> {
+    let shape = actions.shape();
+    let (n, dim) = (batch.num_envs(), batch.action_dim());
+    if shape != [n, dim] {
+        return Err(EquigymError::new_err(format!("{what} must have shape ({n}, {dim}), got {shape:?}")));
+    }
+    let flat = flat_rows(&actions);
+    let (result, secs) = py.detach(|| {
+        let start = Instant::now();
+        let result = batch.step(&flat);
+        (result, start.elapsed().as_secs_f64())
+    });
+    *stepping += secs;
+    result.map_err(to_py)?;
+    Ok(step_outputs(py, batch))
+}
+
 /// The arrays a batched step returns (see `VecEnv.step`).
-pub(crate) fn step_outputs<'py, E: BatchMember, D: ActionDecoder>(py: Python<'py>, b: &BatchEnv<E, D>) -> StepOut<'py> {
+fn step_outputs<'py, E: BatchMember, D: ActionDecoder>(py: Python<'py>, b: &BatchEnv<E, D>) -> StepOut<'py> {
     let n = b.num_envs();
     let obs = obs_array(b, |i| Some(b.obs(i).to_vec()));
     let steps: Vec<_> = (0..n).map(|i| b.last_step(i)).collect();
@@ -121,13 +161,7 @@ impl VecEnv {
         seeds: Vec<u64>,
         mask: Option<Vec<bool>>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let inner = &mut self.inner;
-        py.detach(|| match mask {
-            None => inner.reset(&seeds),
-            Some(mask) => inner.reset_masked(&seeds, &mask),
-        })
-        .map_err(to_py)?;
-        Ok(obs_array(&self.inner, |i| Some(self.inner.obs(i).to_vec())).into_pyarray(py))
+        reset_batch(py, &mut self.inner, seeds, mask)
     }
 
     /// Step all B environments with a (B, action_dim) float64 array:
@@ -137,21 +171,7 @@ impl VecEnv {
     /// observation and `final_obs[i]` the last one of the ended episode). `final_obs` is None
     /// in next_step mode or when nothing ended.
     fn step<'py>(&mut self, py: Python<'py>, actions: PyReadonlyArray2<'py, f64>) -> PyResult<StepOut<'py>> {
-        let shape = actions.shape();
-        let (n, dim) = (self.inner.num_envs(), self.inner.action_dim());
-        if shape != [n, dim] {
-            return Err(EquigymError::new_err(format!("actions must have shape ({n}, {dim}), got {shape:?}")));
-        }
-        let flat = flat_rows(&actions);
-        let inner = &mut self.inner;
-        let (result, secs) = py.detach(|| {
-            let start = Instant::now();
-            let result = inner.step(&flat);
-            (result, start.elapsed().as_secs_f64())
-        });
-        self.stepping += secs;
-        result.map_err(to_py)?;
-        Ok(step_outputs(py, &self.inner))
+        step_batch(py, &mut self.inner, "actions", actions, &mut self.stepping)
     }
 
     /// Current observations, (B, obs_dim) float32.
