@@ -47,6 +47,13 @@ def shipped_policy(task: str) -> Path:
     return path
 
 
+def _policy_arg(task: str, policy: Any) -> Any:
+    """The ``policy`` argument as Rust takes it: the shipped file by default, paths as strings."""
+    if policy is None:
+        policy = shipped_policy(task)
+    return str(policy) if isinstance(policy, Path) else policy
+
+
 class EquiLatentEnv(gymnasium.Env):
     """A task whose action is the latent noise of an (equivariant) diffusion policy.
 
@@ -73,10 +80,7 @@ class EquiLatentEnv(gymnasium.Env):
         **env_kwargs: Any,
     ) -> None:
         env_kwargs["physics"] = physics_options(env_kwargs.get("physics"), controller)
-        if policy is None:
-            policy = shipped_policy(task)
-        if isinstance(policy, Path):
-            policy = str(policy)
+        policy = _policy_arg(task, policy)
         self.core = _core.LatentEnv(task, policy, bound=bound, ddim_steps=ddim_steps, **env_kwargs)
         dim = self.core.latent_dim
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(self.core.observation_dim,), dtype=np.float32)
@@ -150,10 +154,7 @@ class EquiLatentVectorEnv(NativeVectorEnv):
         if max_episode_steps is not None:
             h = env_kwargs.get("horizon")
             env_kwargs["horizon"] = max_episode_steps if h is None else min(h, max_episode_steps)
-        if policy is None:
-            policy = shipped_policy(task)
-        if isinstance(policy, Path):
-            policy = str(policy)
+        policy = _policy_arg(task, policy)
         self.core = _core.LatentVecEnv(
             task, policy, int(num_envs), threads=int(threads), autoreset_mode=mode, bound=bound, ddim_steps=ddim_steps, **env_kwargs
         )
