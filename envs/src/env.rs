@@ -14,7 +14,8 @@ use crate::layout::Layout;
 use crate::math::rotation_from_rot6d;
 use crate::rng::EpisodeRng;
 use crate::robot::{load_urdf, parse_urdf, IkReport, RobotModel};
-use crate::scene::{PhysicsConfig, Scene};
+use crate::scene::Scene;
+use crate::world::PhysicsConfig;
 use crate::tasks::{make_task, Evaluation, RewardKind, Task, TaskOptions};
 
 /// The robot description shipped with equigym.
@@ -117,14 +118,7 @@ impl Env {
                 robot.dof()
             )));
         }
-        let mut scene = Scene::new(
-            robot,
-            spec.robot_base,
-            &spec.home_q,
-            spec.table_top,
-            spec.table_half_extents,
-            config.physics.clone(),
-        )?;
+        let mut scene = Scene::new(robot, spec.robot_base, &spec.home_q, spec.table, config.physics.clone())?;
         task.load_scene(&mut scene);
         let horizon = match config.horizon {
             Some(0) => return Err(EnvError::InvalidConfig("horizon must be positive".into())),
@@ -172,7 +166,7 @@ impl Env {
         Layout::action()
     }
     pub fn max_gripper_width(&self) -> f64 {
-        self.scene.robot.max_gripper_width()
+        self.scene.robot().max_gripper_width()
     }
 
     /// Lower and upper bounds of the raw action.
@@ -198,7 +192,7 @@ impl Env {
         for qi in q.iter_mut() {
             *qi += self.config.init_joint_noise * self.rng.normal();
         }
-        let open = self.scene.robot.fingers[0].upper;
+        let open = self.scene.robot().fingers[0].upper;
         self.scene.place_robot(&q, open);
         self.task.initialise_episode(&mut self.scene, &mut self.rng);
         // Move the colliders with their bodies now, so that renders and queries before the
@@ -269,8 +263,9 @@ impl Env {
     }
 
     /// Move everything that moves (the task's objects, the hand and the fingers) rigidly by
-    /// `motion`, with their velocities, while the robot base and the table stay where they are;
-    /// the arm's joints are re-solved for the moved hand and the last target moves too.
+    /// `motion`, with their velocities, while the robot base and the table stay where they are:
+    /// the arm's joints are re-solved for the moved hand (the hand is where the joints put it,
+    /// so an unreachable pose ends at the closest reachable one) and the last target moves too.
     /// This is how symmetry probes build the transformed state g.s from s. The returned report
     /// says how well the arm reaches the moved hand (joint limits and reach break the symmetry).
     pub fn transform_scene(&mut self, motion: &Isometry3<f64>) -> Result<IkReport> {
@@ -284,7 +279,7 @@ impl Env {
         let bodies: Vec<_> = self.task.objects().iter().map(|o| o.body).collect();
         self.scene.transform_bodies(&bodies, motion);
         let home = self.task.scene_spec().home_q;
-        let report = self.scene.transform_hand(motion, &[home.as_slice()]);
+        let report = self.scene.transform_robot(motion, &[home.as_slice()]);
         let world = &mut self.scene.world;
         world.bodies.propagate_modified_body_positions_to_colliders(&mut world.colliders);
         let t = &mut self.last_target;

@@ -16,8 +16,8 @@
 //! }
 //! ```
 //!
-//! Modules by domain: [`robot`] (URDF, kinematics, IK), [`scene`] (physics world and arm
-//! controller), [`tasks`] (Lift, ...), [`env`] (reset/step/state), [`batch`] (B environments on a thread pool, auto-reset), [`experts`] (scripted
+//! Modules by domain: [`robot`] (URDF, kinematics, IK, the articulated rig, arm controllers),
+//! [`world`] (physics settings, table), [`scene`] (world + robot + servo loop), [`tasks`] (Lift, ...), [`env`] (reset/step/state), [`batch`] (B environments on a thread pool, auto-reset), [`experts`] (scripted
 //! demonstrators), [`render`] (CPU ray caster), [`layout`] (named observation slices).
 
 pub mod batch;
@@ -31,10 +31,11 @@ pub mod rng;
 pub mod robot;
 pub mod scene;
 pub mod tasks;
+pub mod world;
 
 pub use batch::{AutoresetMode, BatchEnv, BatchMember, MemberStep};
 pub use env::{Env, EnvConfig, StepResult, ACTION_DIM};
 pub use error::{EnvError, Result};
 pub use layout::{Field, FieldKind, Layout};
-pub use scene::PhysicsConfig;
+pub use world::PhysicsConfig;
 pub use tasks::{RewardKind, TaskOptions};

@@ -1,19 +1,18 @@
-//! A CPU ray caster over the physics shapes (and the arm's link shapes), so episodes can be
-//! looked at without a GPU, EGL or a display.
+//! A CPU ray caster over the physics shapes (every drawn body collides, the arm's links
+//! included), so episodes can be looked at without a GPU, EGL or a display.
 //!
 //! Images are RGB, 8 bits per channel, row-major with row 0 at the TOP of the picture (the
 //! convention of numpy image arrays, PIL and imageio). Colours come from each collider's user
-//! data (see [`crate::scene::colour_code`]); shading is Lambertian with one directional light
+//! data (see [`crate::world::colour_code`]); shading is Lambertian with one directional light
 //! and hard shadows.
 
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::Vector3;
 use rapier3d::parry::query::Ray;
 use rapier3d::prelude::{Pose, SharedShape, Vector};
 
 use crate::env::Env;
 use crate::error::{EnvError, Result};
-use crate::math::to_pose;
-use crate::scene::{link_shape, Scene};
+use crate::scene::Scene;
 
 /// An RGB image, row 0 at the top.
 #[derive(Clone, Debug, PartialEq)]
@@ -103,23 +102,12 @@ pub fn render_scene(scene: &mut Scene, camera: &Camera, width: usize, height: us
     if width == 0 || height == 0 || width > 4096 || height > 4096 {
         return Err(EnvError::InvalidConfig(format!("image size {width}x{height} must be within 1..=4096")));
     }
-    let mut prims: Vec<Primitive> = scene
+    let prims: Vec<Primitive> = scene
         .world
         .colliders
         .iter()
         .map(|(_, c)| primitive(c.shared_shape().clone(), *c.position(), colour_of(c.user_data)))
         .collect();
-    let robot = scene.robot.clone();
-    let frames = scene.arm_frames().to_vec();
-    for link in &robot.links {
-        let frame: Isometry3<f64> = frames[link.frame] * link.offset;
-        let shade = if link.frame % 2 == 0 { [0.92, 0.92, 0.92] } else { [0.82, 0.82, 0.84] };
-        for s in &link.shapes {
-            let (shape, pose) = link_shape(s);
-            prims.push(primitive(shape, to_pose(&(frame * pose)), shade));
-        }
-    }
-
     let forward = (camera.target - camera.eye).normalize();
     let right = forward.cross(&Vector3::z()).normalize();
     let up = right.cross(&forward);

@@ -147,8 +147,8 @@ pub(crate) fn top_down_grasp(env: &Env, finger_yaw: f64, period: f64) -> UnitQua
 /// The turn about the world z axis from the home posture that [`top_down_grasp`] uses.
 pub(crate) fn top_down_turn(env: &Env, finger_yaw: f64, period: f64) -> f64 {
     let scene = env.scene();
-    let home = scene.robot.tcp_pose(&scene.base, &env.task().scene_spec().home_q).rotation;
-    let finger_dir = home * (scene.robot.fingers[0].origin.rotation * scene.robot.fingers[0].axis.into_inner());
+    let home = scene.robot().tcp_pose(scene.base(), &env.task().scene_spec().home_q).rotation;
+    let finger_dir = home * (scene.robot().fingers[0].origin.rotation * scene.robot().fingers[0].axis.into_inner());
     let home_finger_yaw = finger_dir.y.atan2(finger_dir.x);
     let mut turn = (finger_yaw - home_finger_yaw).rem_euclid(period);
     if turn > period / 2.0 {
@@ -160,6 +160,6 @@ pub(crate) fn top_down_turn(env: &Env, finger_yaw: f64, period: f64) -> f64 {
 /// The TCP rotation at the robot's home posture turned by `turn` about the world z axis.
 pub(crate) fn turned_home(env: &Env, turn: f64) -> UnitQuaternion<f64> {
     let scene = env.scene();
-    let home = scene.robot.tcp_pose(&scene.base, &env.task().scene_spec().home_q).rotation;
+    let home = scene.robot().tcp_pose(scene.base(), &env.task().scene_spec().home_q).rotation;
     UnitQuaternion::from_axis_angle(&Vector3::z_axis(), turn) * home
 }

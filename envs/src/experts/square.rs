@@ -117,7 +117,7 @@ impl Expert for SquareExpert {
         let peg_pose = object_pose(env, 1);
         let peg = peg_pose.translation.vector;
         let tcp = env.scene().tcp_pose().translation.vector;
-        let table = env.scene().table_top;
+        let table = env.task().scene_spec().table.top;
         let open = env.max_gripper_width();
         let carry_z = table + 2.0 * PEG_HALF[2] + 0.06;
         // TCP position that puts the ring's centre at `spot`, given how the nut hangs.

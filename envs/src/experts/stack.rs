@@ -36,7 +36,7 @@ impl Expert for StackExpert {
         let a = object_pose(env, 0).translation.vector;
         let b = object_pose(env, 1).translation.vector;
         let tcp = env.scene().tcp_pose().translation.vector;
-        let table = env.scene().table_top;
+        let table = env.task().scene_spec().table.top;
         let open = env.max_gripper_width();
         let carry_z = table + 2.0 * HALF_B + 0.07;
         // Where the TCP must be for A's centre to sit at `spot`, given how A hangs in the hand.

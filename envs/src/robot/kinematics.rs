@@ -27,6 +27,8 @@ pub struct IkOptions {
     pub rotation_weight: f64,
     /// Largest joint change per iteration (rad), which keeps steps in the linear regime.
     pub max_step: f64,
+    /// Whether solutions stay within the joint limits (off for the symmetry ablation).
+    pub joint_limits: bool,
 }
 
 impl Default for IkOptions {
@@ -38,6 +40,7 @@ impl Default for IkOptions {
             damping: 0.02,
             rotation_weight: 0.3,
             max_step: 0.4,
+            joint_limits: true,
         }
     }
 }
@@ -106,7 +109,21 @@ impl RobotModel {
     /// never leaving the joint limits. Unreachable targets end at the closest pose found.
     pub fn solve_ik(&self, base: &Isometry3<f64>, target: &Isometry3<f64>, q: &mut [f64], opts: &IkOptions) -> IkReport {
         let n = self.dof().min(MAX_DOF);
-        self.clamp_to_limits(q);
+        let limits = |k: usize| {
+            let j = &self.joints[k];
+            if opts.joint_limits {
+                (j.lower, j.upper)
+            } else {
+                (f64::NEG_INFINITY, f64::INFINITY)
+            }
+        };
+        let clamp = |q: &mut [f64]| {
+            for (k, qk) in q.iter_mut().enumerate().take(n) {
+                let (lo, hi) = limits(k);
+                *qk = qk.clamp(lo, hi);
+            }
+        };
+        clamp(q);
         let mut cols = [Vector6::zeros(); MAX_DOF];
         let mut report = IkReport { iterations: 0, position_error: f64::INFINITY, rotation_error: f64::INFINITY, converged: false };
         let w = opts.rotation_weight;
@@ -144,8 +161,8 @@ impl RobotModel {
                 let mut changed = false;
                 for k in 0..n {
                     dq[k] = if frozen[k] { 0.0 } else { cols[k].dot(&y) };
-                    let j = &self.joints[k];
-                    if !frozen[k] && ((q[k] <= j.lower && dq[k] < 0.0) || (q[k] >= j.upper && dq[k] > 0.0)) {
+                    let (lower, upper) = limits(k);
+                    if !frozen[k] && ((q[k] <= lower && dq[k] < 0.0) || (q[k] >= upper && dq[k] > 0.0)) {
                         frozen[k] = true;
                         changed = true;
                     }
@@ -159,11 +176,58 @@ impl RobotModel {
             for k in 0..n {
                 q[k] += dq[k] * scale;
             }
-            self.clamp_to_limits(q);
+            clamp(q);
         }
         report
     }
+
+    /// Like [`RobotModel::solve_ik`], but when the warm start `q` does not converge, restart
+    /// from each of `seeds` and keep the best fit. A restart replaces the warm solution only
+    /// when it fits better by more than [`RESTART_MARGIN`] (metres, rotation weighted by
+    /// `rotation_weight`), so an unreachable target does not make the solution hop between
+    /// branches from one call to the next.
+    ///
+    /// Why: a warm-started damped-least-squares solver settles in local minima, most often
+    /// with a wrist joint pinned at a limit while another branch reaches the target exactly.
+    pub fn solve_ik_restarts(
+        &self,
+        base: &Isometry3<f64>,
+        target: &Isometry3<f64>,
+        q: &mut [f64],
+        seeds: &[&[f64]],
+        opts: &IkOptions,
+    ) -> IkReport {
+        let score = |r: &IkReport| r.position_error + opts.rotation_weight * r.rotation_error;
+        let mut best = self.solve_ik(base, target, q, opts);
+        if best.converged {
+            return best;
+        }
+        let mut best_score = score(&best) - RESTART_MARGIN;
+        let mut trial = [0.0; MAX_DOF];
+        let n = self.dof().min(MAX_DOF);
+        for seed in seeds {
+            if seed.len() != self.dof() {
+                continue;
+            }
+            let t = &mut trial[..n];
+            t.copy_from_slice(&seed[..n]);
+            let report = self.solve_ik(base, target, t, opts);
+            if score(&report) < best_score {
+                best_score = score(&report);
+                best = report;
+                q[..n].copy_from_slice(t);
+                if report.converged {
+                    break;
+                }
+            }
+        }
+        best
+    }
 }
+
+/// How much better (m, rotation weighted) a restarted IK solution must fit to replace the
+/// warm-started one.
+pub const RESTART_MARGIN: f64 = 1e-3;
 
 #[cfg(test)]
 mod tests {

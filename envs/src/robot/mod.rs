@@ -6,12 +6,16 @@
 //! [`kinematics`] adds forward kinematics, the Jacobian and a damped-least-squares IK that
 //! respects the joint limits.
 
+pub mod controller;
 pub mod kinematics;
+pub mod rig;
 mod urdf;
 
 use nalgebra::{Isometry3, Unit, Vector3};
 
+pub use controller::{ArmController, Controller};
 pub use kinematics::{IkOptions, IkReport};
+pub use rig::RobotRig;
 pub use urdf::{load_urdf, parse_urdf};
 
 /// A primitive collision shape, in the frame of the link that owns it.
@@ -71,6 +75,8 @@ pub struct FingerJoint {
     pub upper: f64,
     /// Maximum closing force (N).
     pub max_effort: f64,
+    /// Speed limit along the axis (m/s).
+    pub max_velocity: f64,
     pub link: String,
     pub shapes: Vec<LinkShape>,
     pub inertia: LinkInertia,
@@ -85,6 +91,8 @@ pub struct ArmLink {
     /// Pose of the link in that frame (non-identity for links hanging off fixed joints).
     pub offset: Isometry3<f64>,
     pub shapes: Vec<LinkShape>,
+    /// Mass properties in the link's own frame (the URDF `<inertial>`; zero mass if absent).
+    pub inertia: LinkInertia,
 }
 
 /// Everything equigym needs to know about a robot.
@@ -92,7 +100,7 @@ pub struct ArmLink {
 pub struct RobotModel {
     pub name: String,
     pub joints: Vec<ArmJoint>,
-    /// Arm links (base included), for rendering; the arm links are not physical bodies.
+    /// Arm links (base included), each a body of the articulated arm.
     pub links: Vec<ArmLink>,
     /// Pose of the hand link in the last arm frame.
     pub hand_offset: Isometry3<f64>,

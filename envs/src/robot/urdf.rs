@@ -156,6 +156,7 @@ pub fn parse_urdf(text: &str) -> Result<RobotModel> {
         frame: 0,
         offset: Isometry3::identity(),
         shapes: shapes(links[root])?,
+        inertia: inertia(links[root]),
     }];
     // Pose of the current link in the current arm frame (accumulates fixed joints).
     let mut pending = Isometry3::identity();
@@ -199,6 +200,7 @@ pub fn parse_urdf(text: &str) -> Result<RobotModel> {
                 frame: joints.len(),
                 offset: pending,
                 shapes: shapes(child)?,
+                inertia: inertia(child),
             });
         }
     }
@@ -222,6 +224,7 @@ pub fn parse_urdf(text: &str) -> Result<RobotModel> {
             lower: j.limit.lower,
             upper: j.limit.upper,
             max_effort: if j.limit.effort > 0.0 { j.limit.effort } else { 70.0 },
+            max_velocity: if j.limit.velocity > 0.0 { j.limit.velocity } else { f64::INFINITY },
             link: link.name.clone(),
             shapes: shapes(link)?,
             inertia: inertia(link),

@@ -4,7 +4,7 @@
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rapier3d::prelude::*;
 
-use super::{SceneSpec, TaskObject};
+use super::TaskObject;
 use crate::layout::{FieldKind, Layout};
 use crate::math::{from_pose, rot6d, to_pose};
 use crate::scene::{colour_code, Scene, GROUP_OBJECT, GROUP_STATIC};
@@ -75,8 +75,8 @@ pub fn pose_of(scene: &Scene, object: &TaskObject) -> Isometry3<f64> {
 
 /// Both fingers touch the object.
 pub fn grasped(scene: &Scene, object: &TaskObject) -> bool {
-    scene.body_touches(&scene.bodies.finger_colliders[0], &object.colliders)
-        && scene.body_touches(&scene.bodies.finger_colliders[1], &object.colliders)
+    scene.body_touches(&scene.rig.finger_colliders[0], &object.colliders)
+        && scene.body_touches(&scene.rig.finger_colliders[1], &object.colliders)
 }
 
 /// Any collider of `a` touches any of `b`.
@@ -139,16 +139,5 @@ impl PlacementRange {
     /// Square xy range of half-width `r` around the table centre with a yaw range.
     pub fn square(r: f64, yaw: (f64, f64)) -> Self {
         Self { x: (-r, r), y: (-r, r), yaw }
-    }
-}
-
-/// The robosuite table-top scene every task uses: a 0.8 x 0.8 table with its top at
-/// `table_top`, the Panda at x = -0.56 on its mount, in robosuite's home posture.
-pub fn table_top_scene(table_top: f64) -> SceneSpec {
-    SceneSpec {
-        table_top,
-        table_half_extents: [0.4, 0.4],
-        robot_base: super::lift::robot_base(table_top),
-        home_q: super::lift::panda_home(),
     }
 }

@@ -10,7 +10,7 @@
 use nalgebra::{Isometry3, Vector3};
 use rapier3d::prelude::*;
 
-use super::common;
+use super::{common, tabletop};
 use super::{range_option, Evaluation, SceneSpec, Task, TaskObject, TaskOptions};
 use crate::error::{EnvError, Result};
 use crate::layout::{FieldKind, Layout};
@@ -21,17 +21,6 @@ use crate::scene::Scene;
 pub const TABLE_TOP: f64 = 0.80;
 /// Height above the table top that counts as lifted.
 pub const LIFT_HEIGHT: f64 = 0.04;
-
-/// The Panda's home posture in robosuite.
-pub fn panda_home() -> Vec<f64> {
-    use std::f64::consts::PI;
-    vec![0.0, PI / 16.0, 0.0, -PI / 2.0 - PI / 3.0, 0.0, PI - 0.2, PI / 4.0]
-}
-
-/// Robot base pose shared by the table-top tasks (robosuite's Panda on its mount).
-pub fn robot_base(table_top: f64) -> Isometry3<f64> {
-    Isometry3::translation(-0.56, 0.0, table_top + 0.112)
-}
 
 pub struct Lift {
     layout: Layout,
@@ -103,7 +92,7 @@ impl Task for Lift {
     }
 
     fn scene_spec(&self) -> SceneSpec {
-        common::table_top_scene(TABLE_TOP)
+        tabletop::scene_spec(TABLE_TOP)
     }
 
     fn load_scene(&mut self, scene: &mut Scene) {

@@ -6,6 +6,7 @@ pub mod common;
 pub mod lift;
 pub mod square;
 pub mod stack;
+pub mod tabletop;
 
 use nalgebra::{Isometry3, Vector3};
 use rapier3d::prelude::{ColliderHandle, RigidBodyHandle};
@@ -14,13 +15,12 @@ use crate::error::{EnvError, Result};
 use crate::layout::Layout;
 use crate::rng::EpisodeRng;
 use crate::scene::Scene;
+use crate::world::TableSpec;
 
 /// Where the robot and table stand for a task.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SceneSpec {
-    /// Height of the table top (m).
-    pub table_top: f64,
-    pub table_half_extents: [f64; 2],
+    pub table: TableSpec,
     /// Pose of the robot base in the world.
     pub robot_base: Isometry3<f64>,
     /// Joint configuration at the start of an episode (before noise).

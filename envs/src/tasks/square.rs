@@ -94,7 +94,7 @@ impl Task for Square {
     }
 
     fn scene_spec(&self) -> SceneSpec {
-        common::table_top_scene(TABLE_TOP)
+        super::tabletop::scene_spec(TABLE_TOP)
     }
 
     fn load_scene(&mut self, scene: &mut Scene) {

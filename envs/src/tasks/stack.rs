@@ -71,7 +71,7 @@ impl Task for Stack {
     }
 
     fn scene_spec(&self) -> SceneSpec {
-        common::table_top_scene(TABLE_TOP)
+        super::tabletop::scene_spec(TABLE_TOP)
     }
 
     fn load_scene(&mut self, scene: &mut Scene) {

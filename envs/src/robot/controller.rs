@@ -1,0 +1,278 @@
+//! Arm controllers: an absolute TCP target at 20 Hz becomes joint servo targets for each
+//! physics substep, and nothing else (the joints' servos, torque caps and contacts decide where
+//! the arm actually goes).
+//!
+//! Two implementations of [`ArmController`]:
+//! - [`JointSpace`] (default): the target goes through a joint-limited IK (warm-started, with
+//!   restarts from a seed bank when it is stuck, see [`RobotModel::solve_ik_restarts`]); the
+//!   commanded joints move towards that solution at most at their velocity limits; the servos
+//!   follow the interpolated command. This is the Panda's own joint-space behaviour.
+//! - [`Cartesian`]: the commanded TCP moves towards the closest reachable pose along a straight
+//!   line and the rotation geodesic at bounded speed (like an operational-space controller);
+//!   each substep's pose goes through IK. Without joint limits it commutes with rotations of the
+//!   scene about a vertical axis, so it isolates the joint limits as the cause of symmetry
+//!   breaking.
+//!
+//! Both bound how far the command may run ahead of the measured joints, so a blocked arm (the
+//! table stops the wrist) does not wind up and leap when released.
+
+use nalgebra::{Isometry3, UnitQuaternion};
+use serde::{Deserialize, Serialize};
+
+use super::{IkOptions, IkReport, RobotModel};
+use crate::math::clamp_norm;
+
+/// How far the commanded joints may run ahead of the measured ones (rad).
+const MAX_JOINT_LEAD: f64 = 0.15;
+/// How far the commanded TCP may run ahead of the actual one (m, rad).
+const MAX_TCP_LEAD: f64 = 0.05;
+const MAX_TCP_LEAD_ANGLE: f64 = 0.25;
+/// Speed limits of the commanded TCP (m/s, rad/s); the Panda's Cartesian limits are 1.7 m/s
+/// and 2.5 rad/s.
+const MAX_TCP_SPEED: f64 = 1.0;
+const MAX_TCP_ANGULAR_SPEED: f64 = 2.5;
+
+/// What a controller needs to know about the robot for one call.
+pub struct ControlContext<'a> {
+    pub model: &'a RobotModel,
+    pub base: &'a Isometry3<f64>,
+    pub ik: &'a IkOptions,
+    /// Warm starts for IK restarts (home posture and its variants).
+    pub seeds: &'a [Vec<f64>],
+    /// Control period (s).
+    pub period: f64,
+}
+
+impl ControlContext<'_> {
+    fn clamp(&self, q: &mut [f64]) {
+        if self.ik.joint_limits {
+            self.model.clamp_to_limits(q);
+        }
+    }
+
+    fn solve(&self, target: &Isometry3<f64>, q: &mut [f64]) -> IkReport {
+        let seeds: Vec<&[f64]> = self.seeds.iter().map(|s| s.as_slice()).collect();
+        self.model.solve_ik_restarts(self.base, target, q, &seeds, self.ik)
+    }
+}
+
+/// Turns absolute TCP targets into joint servo targets.
+pub trait ArmController {
+    /// Start at rest at joints `q`.
+    fn reset(&mut self, ctx: &ControlContext, q: &[f64]);
+    /// Plan the next control period towards `target` from the measured joints `q_meas`.
+    fn plan(&mut self, ctx: &ControlContext, q_meas: &[f64], target: &Isometry3<f64>) -> IkReport;
+    /// Servo targets (positions, velocities) at fraction `a` in (0, 1] of the planned period.
+    fn joint_targets(&mut self, ctx: &ControlContext, a: f64, q: &mut [f64], qd: &mut [f64]);
+    /// Move the commanded state rigidly by `motion` (symmetry probes); `q_meas` are the
+    /// re-solved joints of the moved arm. Returns the worst IK fit.
+    fn transform(&mut self, ctx: &ControlContext, motion: &Isometry3<f64>, q_meas: &[f64]) -> IkReport;
+}
+
+/// Joint-space interpolation towards the IK solution of the target.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct JointSpace {
+    /// The IK solution of the last target (warm start of the next solve).
+    pub q_des: Vec<f64>,
+    /// Commanded joints at the start and end of the planned period.
+    pub q_start: Vec<f64>,
+    pub q_end: Vec<f64>,
+}
+
+impl ArmController for JointSpace {
+    fn reset(&mut self, _ctx: &ControlContext, q: &[f64]) {
+        self.q_des = q.to_vec();
+        self.q_start = q.to_vec();
+        self.q_end = q.to_vec();
+    }
+
+    fn plan(&mut self, ctx: &ControlContext, q_meas: &[f64], target: &Isometry3<f64>) -> IkReport {
+        let fit = ctx.solve(target, &mut self.q_des);
+        let n = q_meas.len();
+        for k in 0..n {
+            self.q_start[k] = self.q_end[k].clamp(q_meas[k] - MAX_JOINT_LEAD, q_meas[k] + MAX_JOINT_LEAD);
+        }
+        for k in 0..n {
+            let max = ctx.model.joints[k].max_velocity * ctx.period;
+            self.q_end[k] = self.q_start[k] + (self.q_des[k] - self.q_start[k]).clamp(-max, max);
+        }
+        ctx.clamp(&mut self.q_end);
+        fit
+    }
+
+    fn joint_targets(&mut self, ctx: &ControlContext, a: f64, q: &mut [f64], qd: &mut [f64]) {
+        for k in 0..q.len() {
+            let d = self.q_end[k] - self.q_start[k];
+            q[k] = self.q_start[k] + d * a;
+            qd[k] = d / ctx.period;
+        }
+    }
+
+    fn transform(&mut self, ctx: &ControlContext, motion: &Isometry3<f64>, q_meas: &[f64]) -> IkReport {
+        let mut worst = IkReport { iterations: 0, position_error: 0.0, rotation_error: 0.0, converged: true };
+        for q in [&mut self.q_des, &mut self.q_end] {
+            let target = motion * ctx.model.tcp_pose(ctx.base, q);
+            q.copy_from_slice(q_meas);
+            worst = worse(worst, ctx.solve(&target, q));
+        }
+        self.q_start = self.q_end.clone();
+        worst
+    }
+}
+
+/// Straight-line TCP motion at bounded speed, each substep solved by IK.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Cartesian {
+    /// The IK solution of the last target (its reachable part).
+    pub q_des: Vec<f64>,
+    /// Commanded TCP at the start and end of the planned period.
+    pub tcp_start: Isometry3<f64>,
+    pub tcp_end: Isometry3<f64>,
+    /// Joints of the last substep's commanded pose (warm start of the next).
+    pub q_cmd: Vec<f64>,
+}
+
+impl ArmController for Cartesian {
+    fn reset(&mut self, ctx: &ControlContext, q: &[f64]) {
+        self.q_des = q.to_vec();
+        self.q_cmd = q.to_vec();
+        self.tcp_start = ctx.model.tcp_pose(ctx.base, q);
+        self.tcp_end = self.tcp_start;
+    }
+
+    fn plan(&mut self, ctx: &ControlContext, q_meas: &[f64], target: &Isometry3<f64>) -> IkReport {
+        let fit = ctx.solve(target, &mut self.q_des);
+        // A target reached within the IK tolerance is used as is, so the path does not depend on
+        // where the solver started.
+        let reachable = if fit.converged { *target } else { ctx.model.tcp_pose(ctx.base, &self.q_des) };
+        let now = ctx.model.tcp_pose(ctx.base, q_meas);
+        self.tcp_start = approach(&now, &self.tcp_end, MAX_TCP_LEAD, MAX_TCP_LEAD_ANGLE);
+        self.tcp_end = approach(&self.tcp_start, &reachable, MAX_TCP_SPEED * ctx.period, MAX_TCP_ANGULAR_SPEED * ctx.period);
+        for k in 0..q_meas.len() {
+            self.q_cmd[k] = self.q_cmd[k].clamp(q_meas[k] - MAX_JOINT_LEAD, q_meas[k] + MAX_JOINT_LEAD);
+        }
+        fit
+    }
+
+    fn joint_targets(&mut self, ctx: &ControlContext, a: f64, q: &mut [f64], qd: &mut [f64]) {
+        let pose = Isometry3::from_parts(
+            self.tcp_start.translation.vector.lerp(&self.tcp_end.translation.vector, a).into(),
+            self.tcp_start.rotation.slerp(&self.tcp_end.rotation, a),
+        );
+        q.copy_from_slice(&self.q_cmd);
+        ctx.solve(&pose, q);
+        // Feed-forward velocity of the straight-line path through the joint-space tangent.
+        let n = q.len();
+        let mut ahead = q.to_vec();
+        let next = (a + 1e-3).min(1.0);
+        if next > a {
+            let pose_next = Isometry3::from_parts(
+                self.tcp_start.translation.vector.lerp(&self.tcp_end.translation.vector, next).into(),
+                self.tcp_start.rotation.slerp(&self.tcp_end.rotation, next),
+            );
+            ctx.model.solve_ik(ctx.base, &pose_next, &mut ahead, ctx.ik);
+        }
+        for k in 0..n {
+            qd[k] = if next > a { (ahead[k] - q[k]) / ((next - a) * ctx.period) } else { 0.0 };
+        }
+        self.q_cmd.copy_from_slice(q);
+    }
+
+    fn transform(&mut self, ctx: &ControlContext, motion: &Isometry3<f64>, q_meas: &[f64]) -> IkReport {
+        let target = motion * ctx.model.tcp_pose(ctx.base, &self.q_des);
+        self.q_des.copy_from_slice(q_meas);
+        let fit = ctx.solve(&target, &mut self.q_des);
+        self.tcp_start = motion * self.tcp_start;
+        self.tcp_end = motion * self.tcp_end;
+        self.q_cmd.copy_from_slice(q_meas);
+        fit
+    }
+}
+
+/// The controller of a scene (serialisable with the physics state).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Controller {
+    Joint(JointSpace),
+    Cartesian(Cartesian),
+}
+
+impl Controller {
+    /// A controller of the chosen kind at rest at joints `q`.
+    pub fn new(cartesian: bool, ctx: &ControlContext, q: &[f64]) -> Self {
+        let mut c = if cartesian {
+            Controller::Cartesian(Cartesian {
+                q_des: Vec::new(),
+                tcp_start: Isometry3::identity(),
+                tcp_end: Isometry3::identity(),
+                q_cmd: Vec::new(),
+            })
+        } else {
+            Controller::Joint(JointSpace { q_des: Vec::new(), q_start: Vec::new(), q_end: Vec::new() })
+        };
+        c.get().reset(ctx, q);
+        c
+    }
+
+    pub fn get(&mut self) -> &mut dyn ArmController {
+        match self {
+            Controller::Joint(c) => c,
+            Controller::Cartesian(c) => c,
+        }
+    }
+
+    /// The IK solution of the last target.
+    pub fn desired_joints(&self) -> &[f64] {
+        match self {
+            Controller::Joint(c) => &c.q_des,
+            Controller::Cartesian(c) => &c.q_des,
+        }
+    }
+
+    /// Number of joints the state holds (for validating restored states).
+    pub fn dof(&self) -> usize {
+        self.desired_joints().len()
+    }
+}
+
+/// The worse of two IK fits.
+pub fn worse(a: IkReport, b: IkReport) -> IkReport {
+    IkReport {
+        iterations: a.iterations.max(b.iterations),
+        position_error: a.position_error.max(b.position_error),
+        rotation_error: a.rotation_error.max(b.rotation_error),
+        converged: a.converged && b.converged,
+    }
+}
+
+/// Move pose `from` towards `to` by at most `max_step` metres and `max_angle` radians (a pose
+/// on the straight line and the geodesic between them). Commutes with rigid motions.
+pub fn approach(from: &Isometry3<f64>, to: &Isometry3<f64>, max_step: f64, max_angle: f64) -> Isometry3<f64> {
+    let dp = clamp_norm(to.translation.vector - from.translation.vector, max_step);
+    let turn = to.rotation * from.rotation.inverse();
+    let angle = turn.angle();
+    let turn = if angle > max_angle { UnitQuaternion::from_scaled_axis(turn.scaled_axis() * (max_angle / angle)) } else { turn };
+    Isometry3::from_parts((from.translation.vector + dp).into(), turn * from.rotation)
+}
+
+/// Warm starts for IK restarts: the home posture and its wrist turned by a quarter and a half
+/// turn each way (joint 7), and the same with the forearm (joint 5) turned, which covers the
+/// branches a continuous yaw sweep of a top-down grasp needs once joint 7 reaches a limit.
+pub fn seed_bank(model: &RobotModel, home: &[f64]) -> Vec<Vec<f64>> {
+    use std::f64::consts::{FRAC_PI_2, PI};
+    let mut out = Vec::new();
+    let n = home.len();
+    for d7 in [0.0, FRAC_PI_2, -FRAC_PI_2, PI, -PI] {
+        for d5 in [0.0, FRAC_PI_2, -FRAC_PI_2] {
+            let mut q = home.to_vec();
+            if n >= 7 {
+                q[6] += d7;
+                q[4] += d5;
+            }
+            model.clamp_to_limits(&mut q);
+            if !out.contains(&q) {
+                out.push(q);
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,418 @@
+//! The robot rig: a [`RobotModel`] spawned into a rapier world as one articulated multibody.
+//!
+//! - **Reduced coordinates.** The base link is the fixed root; each arm joint is a revolute
+//!   multibody joint with the URDF's position limits, and the two fingers are prismatic joints
+//!   of the last link (the hand's link; fixed joints are folded into it). A finger therefore
+//!   cannot leave its axis or its travel, and the hand is exactly where the joint state puts it.
+//! - **Mass.** Every link carries its URDF mass, centre of mass and principal inertia.
+//! - **Actuation.** Each joint has a force-based position servo (stiffness, damping) whose
+//!   torque is capped at the URDF effort limit (87 N m for joints 1-4, 12 N m for 5-7; 70 N per
+//!   finger). rapier does not cap joint speeds, so [`RobotRig::clamp_joint_velocities`] holds
+//!   every joint to its URDF velocity limit after each physics step.
+//! - **Gravity compensation.** The links feel no gravity (gravity scale 0): this is ideal
+//!   gravity compensation, as robosuite's controllers add the gravity torques before clipping
+//!   to the torque limits. Objects keep their weight, so what the fingers hold loads the joints.
+//! - **Collisions.** Every link has colliders (the URDF's primitives) that touch the table and the
+//!   objects. Adjacent links never collide (their joint disables it); other link pairs collide
+//!   when [`PhysicsConfig::self_collision`] is on, except pairs closer than
+//!   [`SELF_COLLISION_MIN_GAP`] along the chain, whose primitive shapes overlap at the joint.
+
+use std::sync::Arc;
+
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
+use rapier3d::prelude::*;
+
+use super::{LinkInertia, RobotModel};
+use crate::error::{EnvError, Result};
+use crate::math::{from_pose, to_pose, to_vector};
+use crate::world::{colour_code, link_collider, PhysicsConfig, FIRST_LINK_GROUP_BIT, GROUP_OBJECT, GROUP_ROBOT, GROUP_STATIC};
+
+/// Finger pads are rubber: their friction is this multiple of the scene's.
+pub const FINGER_PAD_FRICTION: f64 = 2.0;
+
+/// Finger servo gains (force-based, N/m and N s/m). With 15 g fingers, stiffer or more damped
+/// servos squeeze objects out of the grasp.
+const FINGER_STIFFNESS: f32 = 2000.0;
+const FINGER_DAMPING: f32 = 40.0;
+
+/// Link pairs closer than this along the chain never collide with each other: the primitive
+/// shapes of links k and k + 2 (and of the hand and link 5) overlap around the joints between
+/// them in ordinary postures (measured by `envs/tests/physics.rs::self_collision_pairs_are_free_at_home`).
+pub const SELF_COLLISION_MIN_GAP: usize = 3;
+
+/// Colours of the links, alternating along the chain; the fingers are dark.
+const LINK_COLOURS: [[u8; 3]; 2] = [[235, 235, 235], [209, 209, 214]];
+const FINGER_COLOUR: [u8; 3] = [60, 60, 60];
+
+/// Handles of the robot's parts in the world, and where their coordinates live.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RobotRig {
+    pub model: Arc<RobotModel>,
+    /// Pose of the base (arm frame 0) in the world.
+    pub base: Isometry3<f64>,
+    /// Bodies of arm frames 0 (fixed root) ..= dof (the last carries the hand).
+    pub link_bodies: Vec<RigidBodyHandle>,
+    /// Colliders of each arm frame's body (the hand's are in the last one).
+    pub link_colliders: Vec<Vec<ColliderHandle>>,
+    pub hand_colliders: Vec<ColliderHandle>,
+    pub finger_bodies: [RigidBodyHandle; 2],
+    pub finger_colliders: [Vec<ColliderHandle>; 2],
+    arm_joints: Vec<MultibodyJointHandle>,
+    finger_joints: [MultibodyJointHandle; 2],
+    /// Generalised-coordinate index of each arm joint, then of each finger.
+    arm_dofs: Vec<usize>,
+    finger_dofs: [usize; 2],
+    joint_limits: bool,
+}
+
+/// The joint's local x axis is its axis of motion (rapier's convention).
+fn align_x(axis: &Vector3<f64>) -> UnitQuaternion<f64> {
+    UnitQuaternion::rotation_between(&Vector3::x(), axis)
+        .unwrap_or_else(|| UnitQuaternion::from_axis_angle(&Vector3::z_axis(), std::f64::consts::PI))
+}
+
+fn mass_properties(i: &LinkInertia, offset: &Isometry3<f64>, what: &str) -> Result<MassProperties> {
+    let finite = i.mass.is_finite() && i.centre_of_mass.iter().chain(i.principal_inertia.iter()).all(|v| v.is_finite());
+    if !finite || i.mass < 0.0 || i.principal_inertia.iter().any(|v| *v < 0.0) {
+        return Err(EnvError::Urdf {
+            source_name: "<robot>".into(),
+            reason: format!("{what}: mass and inertia must be finite and non-negative"),
+        });
+    }
+    Ok(MassProperties::new(to_vector(&i.centre_of_mass), i.mass as f32, to_vector(&i.principal_inertia)).transform_by(&to_pose(offset)))
+}
+
+fn link_groups(index: usize, count: usize, self_collision: bool) -> InteractionGroups {
+    let bit = |k: usize| Group::from_bits_truncate(1 << (FIRST_LINK_GROUP_BIT as usize + k));
+    let mut filter = GROUP_OBJECT | GROUP_STATIC;
+    if self_collision {
+        for other in 0..count {
+            if other.abs_diff(index) >= SELF_COLLISION_MIN_GAP {
+                filter |= bit(other);
+            }
+        }
+    }
+    InteractionGroups::new(GROUP_ROBOT | bit(index), filter, InteractionTestMode::And)
+}
+
+impl RobotRig {
+    /// Spawn the robot at joints `q0` (clamped to the limits when they apply), fingers at
+    /// `finger0`, at rest.
+    pub fn spawn(
+        world: &mut PhysicsWorld,
+        model: Arc<RobotModel>,
+        base: Isometry3<f64>,
+        q0: &[f64],
+        finger0: f64,
+        config: &PhysicsConfig,
+    ) -> Result<Self> {
+        let dof = model.dof();
+        if q0.len() != dof {
+            return Err(EnvError::WrongLength { what: "initial joint configuration".into(), expected: dof, got: q0.len() });
+        }
+        if dof + 2 + FIRST_LINK_GROUP_BIT as usize > 32 {
+            return Err(EnvError::Urdf { source_name: "<robot>".into(), reason: format!("{dof} arm joints: at most 26 are supported") });
+        }
+        // Bodies of each arm frame with the links (and, last, the hand) attached to it.
+        let frames = dof + 1;
+        // Fingers share the self-collision index after the hand's link.
+        let group_count = frames + 1;
+        let robot_friction = config.friction as f32;
+        let mut link_bodies = Vec::with_capacity(frames);
+        let mut link_colliders = Vec::with_capacity(frames);
+        let mut hand_colliders = Vec::new();
+        for frame in 0..frames {
+            let mut mprops = MassProperties::default();
+            for link in model.links.iter().filter(|l| l.frame == frame) {
+                mprops += mass_properties(&link.inertia, &link.offset, &link.name)?;
+            }
+            if frame == dof {
+                mprops += mass_properties(&model.hand_inertia, &model.hand_offset, &model.hand_link)?;
+            }
+            let builder = if frame == 0 { RigidBodyBuilder::fixed().pose(to_pose(&base)) } else { RigidBodyBuilder::dynamic() };
+            let body = world.insert_body(builder.gravity_scale(0.0).can_sleep(false).additional_mass_properties(mprops));
+            let groups = link_groups(frame, group_count, config.self_collision);
+            let colour = colour_code(LINK_COLOURS[frame % 2]);
+            let mut cols = Vec::new();
+            for link in model.links.iter().filter(|l| l.frame == frame) {
+                for s in &link.shapes {
+                    let c = link_collider(s, &link.offset).friction(robot_friction).collision_groups(groups).user_data(colour);
+                    cols.push(world.insert_collider(c, Some(body)));
+                }
+            }
+            if frame == dof {
+                for s in &model.hand_shapes {
+                    let c = link_collider(s, &model.hand_offset).friction(robot_friction).collision_groups(groups).user_data(colour);
+                    let h = world.insert_collider(c, Some(body));
+                    cols.push(h);
+                    hand_colliders.push(h);
+                }
+            }
+            link_bodies.push(body);
+            link_colliders.push(cols);
+        }
+
+        let stiffness = config.joint_stiffness as f32;
+        let damping = config.joint_damping as f32;
+        let mut arm_joints = Vec::with_capacity(dof);
+        for (k, j) in model.joints.iter().enumerate() {
+            let align = align_x(&j.axis);
+            let mut b = GenericJointBuilder::new(JointAxesMask::LOCKED_REVOLUTE_AXES)
+                .local_frame1(to_pose(&(j.origin * align)))
+                .local_frame2(to_pose(&Isometry3::from_parts(nalgebra::Translation3::identity(), align)))
+                .contacts_enabled(false)
+                .motor_model(JointAxis::AngX, MotorModel::ForceBased)
+                .motor_position(JointAxis::AngX, 0.0, stiffness, damping)
+                .motor_max_force(JointAxis::AngX, j.max_effort.max(0.0) as f32);
+            if config.joint_limits && j.lower.is_finite() && j.upper.is_finite() {
+                b = b.limits(JointAxis::AngX, [j.lower as f32, j.upper as f32]);
+            }
+            let handle = world
+                .multibody_joints
+                .insert(link_bodies[k], link_bodies[k + 1], b.build(), true)
+                .ok_or_else(|| EnvError::Urdf { source_name: "<robot>".into(), reason: format!("joint '{}' closes a loop", j.name) })?;
+            arm_joints.push(handle);
+        }
+
+        let hand_body = link_bodies[dof];
+        let finger_groups = link_groups(frames, group_count, config.self_collision);
+        let finger_force = config.max_finger_force;
+        let mut finger_bodies = Vec::new();
+        let mut finger_joints = Vec::new();
+        let mut finger_colliders = Vec::new();
+        for f in &model.fingers {
+            let body = world.insert_body(
+                RigidBodyBuilder::dynamic()
+                    .gravity_scale(0.0)
+                    .can_sleep(false)
+                    .additional_mass_properties(mass_properties(&f.inertia, &Isometry3::identity(), &f.link)?),
+            );
+            let mut cols = Vec::new();
+            for s in &f.shapes {
+                let c = link_collider(s, &Isometry3::identity())
+                    .friction((config.friction * FINGER_PAD_FRICTION) as f32)
+                    .collision_groups(finger_groups)
+                    .user_data(colour_code(FINGER_COLOUR));
+                cols.push(world.insert_collider(c, Some(body)));
+            }
+            let align = align_x(&f.axis);
+            let joint = GenericJointBuilder::new(JointAxesMask::LOCKED_PRISMATIC_AXES)
+                .local_frame1(to_pose(&(model.hand_offset * f.origin * align)))
+                .local_frame2(to_pose(&Isometry3::from_parts(nalgebra::Translation3::identity(), align)))
+                .contacts_enabled(false)
+                .limits(JointAxis::LinX, [f.lower as f32, f.upper as f32])
+                .motor_model(JointAxis::LinX, MotorModel::ForceBased)
+                .motor_position(JointAxis::LinX, f.lower as f32, FINGER_STIFFNESS, FINGER_DAMPING)
+                .motor_max_force(JointAxis::LinX, finger_force.min(f.max_effort) as f32)
+                .build();
+            let handle = world
+                .multibody_joints
+                .insert(hand_body, body, joint, true)
+                .ok_or_else(|| EnvError::Urdf { source_name: "<robot>".into(), reason: format!("finger '{}' closes a loop", f.name) })?;
+            finger_bodies.push(body);
+            finger_joints.push(handle);
+            finger_colliders.push(cols);
+        }
+
+        let mut rig = Self {
+            model,
+            base,
+            link_bodies,
+            link_colliders,
+            hand_colliders,
+            finger_bodies: [finger_bodies[0], finger_bodies[1]],
+            finger_colliders: [finger_colliders[0].clone(), finger_colliders[1].clone()],
+            arm_joints,
+            finger_joints: [finger_joints[0], finger_joints[1]],
+            arm_dofs: Vec::new(),
+            finger_dofs: [0; 2],
+            joint_limits: config.joint_limits,
+        };
+        // Settle the root type (a fixed base has no free joint) before reading dof indices.
+        if let Some((mb, _)) = world.multibody_joints.get_mut(rig.arm_joints[0]) {
+            mb.forward_kinematics(&world.bodies, true);
+        }
+        let dof_of = |world: &PhysicsWorld, h: MultibodyJointHandle| {
+            world.multibody_joints.get(h).and_then(|(mb, id)| mb.link(id)).map(|l| l.assembly_id())
+        };
+        let mut arm_dofs = Vec::with_capacity(dof);
+        for h in &rig.arm_joints {
+            arm_dofs.push(dof_of(world, *h).ok_or_else(|| EnvError::InvalidConfig("the arm multibody lost a joint".into()))?);
+        }
+        rig.arm_dofs = arm_dofs;
+        for k in 0..2 {
+            rig.finger_dofs[k] = dof_of(world, rig.finger_joints[k]).ok_or_else(|| EnvError::InvalidConfig("the arm multibody lost a finger".into()))?;
+        }
+        rig.place(world, q0, [finger0; 2]);
+        Ok(rig)
+    }
+
+    pub fn dof(&self) -> usize {
+        self.model.dof()
+    }
+
+    /// Whether the joint limits are enforced.
+    pub fn joint_limits(&self) -> bool {
+        self.joint_limits
+    }
+
+    /// Clamp joints into the limits (when they apply).
+    pub fn clamp_to_limits(&self, q: &mut [f64]) {
+        if self.joint_limits {
+            self.model.clamp_to_limits(q);
+        }
+    }
+
+    fn multibody<'a>(&self, world: &'a PhysicsWorld) -> &'a Multibody {
+        // The arm's joints are inserted at spawn and never removed.
+        world.multibody_joints.get(self.arm_joints[0]).map(|(mb, _)| mb).expect("the rig's multibody exists")
+    }
+
+    fn multibody_mut<'a>(&self, world: &'a mut PhysicsWorld) -> &'a mut Multibody {
+        world.multibody_joints.get_mut(self.arm_joints[0]).map(|(mb, _)| mb).expect("the rig's multibody exists")
+    }
+
+    /// Generalised coordinate of one joint (revolute: angle about its x axis; prismatic: travel).
+    fn coordinate(&self, world: &PhysicsWorld, handle: MultibodyJointHandle, revolute: bool) -> f64 {
+        let (mb, id) = world.multibody_joints.get(handle).expect("the rig's joints exist");
+        let c = mb.link(id).expect("the rig's links exist").joint().coords();
+        (if revolute { c[3] } else { c[0] }) as f64
+    }
+
+    /// Measured arm joint positions (rad).
+    pub fn joint_positions(&self, world: &PhysicsWorld, out: &mut [f64]) {
+        for (k, h) in self.arm_joints.iter().enumerate() {
+            out[k] = self.coordinate(world, *h, true);
+        }
+    }
+
+    /// Measured arm joint velocities (rad/s).
+    pub fn joint_velocities(&self, world: &PhysicsWorld, out: &mut [f64]) {
+        let v = self.multibody(world).generalized_velocity();
+        for (k, d) in self.arm_dofs.iter().enumerate() {
+            out[k] = v[*d] as f64;
+        }
+    }
+
+    /// Travel of each finger (half the opening each).
+    pub fn finger_positions(&self, world: &PhysicsWorld) -> [f64; 2] {
+        [self.coordinate(world, self.finger_joints[0], false), self.coordinate(world, self.finger_joints[1], false)]
+    }
+
+    /// Finger speeds along their axes (m/s).
+    pub fn finger_velocities(&self, world: &PhysicsWorld) -> [f64; 2] {
+        let v = self.multibody(world).generalized_velocity();
+        [v[self.finger_dofs[0]] as f64, v[self.finger_dofs[1]] as f64]
+    }
+
+    /// World pose of the hand link, from its body.
+    pub fn hand_pose(&self, world: &PhysicsWorld) -> Isometry3<f64> {
+        from_pose(world.bodies[self.link_bodies[self.dof()]].position()) * self.model.hand_offset
+    }
+
+    /// World pose of the tool-centre point.
+    pub fn tcp_pose(&self, world: &PhysicsWorld) -> Isometry3<f64> {
+        self.hand_pose(world) * self.model.tcp_offset
+    }
+
+    /// Put the arm at joints `q` (clamped to the limits when they apply) and the fingers at
+    /// `fingers` travel, at rest, with the servos holding that configuration.
+    pub fn place(&self, world: &mut PhysicsWorld, q: &[f64], fingers: [f64; 2]) {
+        let dof = self.dof();
+        let mut q = q.to_vec();
+        self.clamp_to_limits(&mut q);
+        let travel: [f64; 2] = std::array::from_fn(|k| {
+            let f = &self.model.fingers[k];
+            fingers[k].clamp(f.lower, f.upper)
+        });
+        let mut current = vec![0.0; dof];
+        self.joint_positions(world, &mut current);
+        let fingers_now = self.finger_positions(world);
+        let mb = self.multibody_mut(world);
+        let mut disp = vec![0.0f32; mb.ndofs()];
+        for k in 0..dof {
+            disp[self.arm_dofs[k]] = (q[k] - current[k]) as f32;
+        }
+        for k in 0..2 {
+            disp[self.finger_dofs[k]] = (travel[k] - fingers_now[k]) as f32;
+        }
+        mb.apply_displacements(&disp);
+        mb.generalized_velocity_mut().fill(0.0);
+        let PhysicsWorld { multibody_joints, bodies, .. } = world;
+        let mb = multibody_joints.get_mut(self.arm_joints[0]).map(|(mb, _)| mb).expect("the rig's multibody exists");
+        mb.forward_kinematics(bodies, false);
+        mb.update_rigid_bodies(bodies, true);
+        for h in self.link_bodies.iter().chain(&self.finger_bodies) {
+            let b = &mut bodies[*h];
+            b.set_linvel(Vector::ZERO, true);
+            b.set_angvel(Vector::ZERO, true);
+        }
+        let zero = vec![0.0; dof];
+        self.set_arm_targets(world, &q, &zero);
+        for (k, h) in self.finger_joints.iter().enumerate() {
+            self.set_finger_target(world, *h, travel[k]);
+        }
+    }
+
+    /// Set the joint velocities (rad/s) of the arm, keeping its configuration.
+    pub fn set_joint_velocities(&self, world: &mut PhysicsWorld, qd: &[f64]) {
+        let mb = self.multibody_mut(world);
+        let mut v = mb.generalized_velocity_mut();
+        for (k, d) in self.arm_dofs.iter().enumerate() {
+            v[*d] = qd[k] as f32;
+        }
+    }
+
+    /// Servo targets of the arm joints: positions (rad) and feed-forward velocities (rad/s).
+    pub fn set_arm_targets(&self, world: &mut PhysicsWorld, q: &[f64], qd: &[f64]) {
+        for (k, h) in self.arm_joints.iter().enumerate() {
+            if let Some((mb, id)) = world.multibody_joints.get_mut(*h) {
+                if let Some(link) = mb.link_mut(id) {
+                    let m = link.joint.data.motor(JointAxis::AngX).copied().unwrap_or_default();
+                    link.joint.data.set_motor(JointAxis::AngX, q[k] as f32, qd[k] as f32, m.stiffness, m.damping);
+                }
+            }
+        }
+    }
+
+    /// Servo target of both fingers (travel, m).
+    pub fn set_finger_targets(&self, world: &mut PhysicsWorld, travel: f64) {
+        for h in &self.finger_joints {
+            self.set_finger_target(world, *h, travel);
+        }
+    }
+
+    fn set_finger_target(&self, world: &mut PhysicsWorld, joint: MultibodyJointHandle, travel: f64) {
+        if let Some((mb, id)) = world.multibody_joints.get_mut(joint) {
+            if let Some(link) = mb.link_mut(id) {
+                link.joint.data.set_motor_position(JointAxis::LinX, travel as f32, FINGER_STIFFNESS, FINGER_DAMPING);
+            }
+        }
+    }
+
+    /// Hold every joint to its URDF velocity limit (rapier itself does not cap joint speeds:
+    /// contacts and the servos drove joints to 1.3-6x their limits without this).
+    pub fn clamp_joint_velocities(&self, world: &mut PhysicsWorld) {
+        let model = self.model.clone();
+        let mb = self.multibody_mut(world);
+        let mut v = mb.generalized_velocity_mut();
+        for (j, d) in model.joints.iter().zip(&self.arm_dofs) {
+            let max = j.max_velocity as f32;
+            v[*d] = v[*d].clamp(-max, max);
+        }
+        for (f, d) in model.fingers.iter().zip(&self.finger_dofs) {
+            let max = f.max_velocity as f32;
+            v[*d] = v[*d].clamp(-max, max);
+        }
+    }
+
+    /// All colliders of the robot: links, hand and fingers.
+    pub fn colliders(&self) -> impl Iterator<Item = ColliderHandle> + '_ {
+        self.link_colliders.iter().flatten().chain(self.finger_colliders.iter().flatten()).copied()
+    }
+
+    /// All dynamic bodies of the robot (links after the base, and the fingers).
+    pub fn moving_bodies(&self) -> impl Iterator<Item = RigidBodyHandle> + '_ {
+        self.link_bodies[1..].iter().chain(&self.finger_bodies).copied()
+    }
+}

@@ -1,0 +1,185 @@
+//! The static world: physics settings, the table and the floor, collision groups, and the
+//! conversion of URDF-style primitive shapes into rapier colliders.
+//!
+//! The solver settings are chosen so that objects held by friction stay held
+//! (`envs/tests/physics.rs` measures a 20 s hold) and contacts stay shallow; what each setting
+//! buys and costs is written next to it.
+
+use nalgebra::Isometry3;
+use rapier3d::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{EnvError, Result};
+use crate::math::to_pose;
+use crate::robot::{LinkShape, ShapeKind};
+
+/// Membership of every robot collider (objects and the table filter on it).
+pub const GROUP_ROBOT: Group = Group::GROUP_1;
+/// Membership of the task objects.
+pub const GROUP_OBJECT: Group = Group::GROUP_2;
+/// Membership of the table, the floor and fixed task parts (a peg).
+pub const GROUP_STATIC: Group = Group::GROUP_3;
+/// First of the per-link membership bits used for self-collision filtering (link k gets bit
+/// `FIRST_LINK_GROUP_BIT + k`).
+pub const FIRST_LINK_GROUP_BIT: u32 = 4;
+
+/// Physics and actuation settings. The defaults are the ones the shipped tasks are tuned for.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PhysicsConfig {
+    /// Physics timestep (s).
+    pub timestep: f64,
+    /// Physics steps per control step (control period = timestep * substeps; 20 Hz by default).
+    pub substeps: usize,
+    /// Solver iterations per physics step.
+    pub solver_iterations: usize,
+    /// Friction coefficient of objects and table (finger pads get a multiple of it).
+    pub friction: f64,
+    /// Stiffness of the arm's joint position servos (N m / rad).
+    pub joint_stiffness: f64,
+    /// Damping of the arm's joint servos (N m s / rad).
+    pub joint_damping: f64,
+    /// Cap on each finger's force (N); the URDF effort limit caps it too.
+    pub max_finger_force: f64,
+    /// Finger travel speed (m/s); the URDF velocity limit caps it too.
+    pub finger_speed: f64,
+    /// Whether the arm's joint limits are enforced (turn off for symmetry ablations).
+    pub joint_limits: bool,
+    /// Whether non-adjacent arm links collide with each other.
+    pub self_collision: bool,
+    /// Cartesian arm control instead of joint-space interpolation (see
+    /// [`crate::robot::controller`]); with `joint_limits` off it makes every control step
+    /// commute with rotations of the scene about a vertical axis.
+    pub cartesian_control: bool,
+}
+
+impl Default for PhysicsConfig {
+    fn default() -> Self {
+        Self {
+            timestep: 1.0 / 240.0,
+            substeps: 12,
+            solver_iterations: 4,
+            friction: 1.0,
+            joint_stiffness: 2000.0,
+            joint_damping: 100.0,
+            max_finger_force: 70.0,
+            finger_speed: 0.2,
+            joint_limits: true,
+            self_collision: true,
+            cartesian_control: false,
+        }
+    }
+}
+
+impl PhysicsConfig {
+    pub fn control_period(&self) -> f64 {
+        self.timestep * self.substeps as f64
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        let positive = [
+            ("timestep", self.timestep),
+            ("friction", self.friction),
+            ("joint_stiffness", self.joint_stiffness),
+            ("max_finger_force", self.max_finger_force),
+            ("finger_speed", self.finger_speed),
+        ];
+        for (name, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(EnvError::InvalidConfig(format!("{name} must be positive and finite, got {v}")));
+            }
+        }
+        if !(self.joint_damping.is_finite() && self.joint_damping >= 0.0) {
+            return Err(EnvError::InvalidConfig(format!("joint_damping must be finite and >= 0, got {}", self.joint_damping)));
+        }
+        if self.timestep > 0.05 {
+            return Err(EnvError::InvalidConfig(format!("timestep must be at most 0.05 s, got {}", self.timestep)));
+        }
+        if self.substeps == 0 || self.substeps > 1000 || self.solver_iterations == 0 || self.solver_iterations > 100 {
+            return Err(EnvError::InvalidConfig("substeps must be in 1..=1000 and solver_iterations in 1..=100".into()));
+        }
+        Ok(())
+    }
+}
+
+/// Where the table stands.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TableSpec {
+    /// Height of the table top (m).
+    pub top: f64,
+    /// Half extents of the top in x and y (m).
+    pub half_extents: [f64; 2],
+}
+
+/// Rendering colour of a collider, kept in its user data.
+pub fn colour_code(rgb: [u8; 3]) -> u128 {
+    ((rgb[0] as u128) << 16) | ((rgb[1] as u128) << 8) | rgb[2] as u128 | (1u128 << 32)
+}
+
+/// An empty world with the solver settings of `config`, a table and a floor.
+pub fn build_world(config: &PhysicsConfig, table: &TableSpec) -> PhysicsWorld {
+    let mut world = PhysicsWorld::new();
+    world.gravity = Vector::new(0.0, 0.0, -9.81);
+    let ip = &mut world.integration_parameters;
+    ip.dt = config.timestep as f32;
+    ip.num_solver_iterations = config.solver_iterations;
+    // A finger must not "hold" an object across a gap, which recycled contacts allow.
+    ip.contact_recycling = false;
+    // Solve friction in the biased (position-correcting) pass too. Without it, that pass moves
+    // bodies with velocities friction has not yet acted on, and anything held by friction
+    // alone creeps under gravity by g * dt / iterations (about 1 cm/s).
+    ip.friction_in_bias_pass = true;
+    // rapier tolerates 5 mm of penetration by default; objects of 4 cm need tighter contact.
+    ip.normalized_allowed_linear_error = 0.001;
+    // Stiffer contacts against the table: a light cube pressed by the hand sinks < 2 mm
+    // (60 Hz, the default, lets it sink ~5 mm).
+    ip.static_contact_softness.natural_frequency = 120.0;
+
+    let static_groups = InteractionGroups::new(GROUP_STATIC, GROUP_ROBOT | GROUP_OBJECT, InteractionTestMode::And);
+    // The table is a solid block down to the floor: a thin top lets a squeezed object tunnel
+    // through, while a block always pushes it back out through the top.
+    let thickness = table.top as f32;
+    let body = world.insert_body(RigidBodyBuilder::fixed().translation(Vector::new(0.0, 0.0, table.top as f32 - thickness / 2.0)));
+    world.insert_collider(
+        ColliderBuilder::cuboid(table.half_extents[0] as f32, table.half_extents[1] as f32, thickness / 2.0)
+            .friction(config.friction as f32)
+            .collision_groups(static_groups)
+            .user_data(colour_code([196, 164, 124])),
+        Some(body),
+    );
+    // A floor far below catches anything that falls off the table.
+    let floor = world.insert_body(RigidBodyBuilder::fixed().translation(Vector::new(0.0, 0.0, -0.05)));
+    world.insert_collider(
+        ColliderBuilder::cuboid(3.0, 3.0, 0.05).collision_groups(static_groups).user_data(colour_code([90, 90, 100])),
+        Some(floor),
+    );
+    world
+}
+
+pub fn shape_of(s: &ShapeKind) -> SharedShape {
+    match s {
+        ShapeKind::Cuboid { half_extents: h } => SharedShape::cuboid(h.x as f32, h.y as f32, h.z as f32),
+        ShapeKind::Cylinder { radius, half_height } => SharedShape::cylinder(*half_height as f32, *radius as f32),
+        ShapeKind::Capsule { radius, half_height } => SharedShape::capsule_z(*half_height as f32, *radius as f32),
+        ShapeKind::Ball { radius } => SharedShape::ball(*radius as f32),
+    }
+}
+
+/// rapier's cylinders run along y; URDF's along z.
+fn shape_pose(s: &LinkShape) -> Isometry3<f64> {
+    match s.shape {
+        ShapeKind::Cylinder { .. } => s.pose * nalgebra::UnitQuaternion::from_euler_angles(std::f64::consts::FRAC_PI_2, 0.0, 0.0),
+        _ => s.pose,
+    }
+}
+
+/// A link shape as a rapier shape and its pose in the link frame.
+pub fn link_shape(s: &LinkShape) -> (SharedShape, Isometry3<f64>) {
+    (shape_of(&s.shape), shape_pose(s))
+}
+
+/// A collider for a link shape placed at `offset * shape pose` in its body's frame.
+pub fn link_collider(s: &LinkShape, offset: &Isometry3<f64>) -> ColliderBuilder {
+    let (shape, pose) = link_shape(s);
+    ColliderBuilder::new(shape).position(to_pose(&(offset * pose))).density(0.0)
+}
