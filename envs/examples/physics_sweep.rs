@@ -1,61 +1,117 @@
-//! Sweep solver iterations and hand force: worst cube penetration under adversarial actions,
-//! expert success and throughput. Used to choose the defaults in `PhysicsConfig`.
+//! Solver settings against physical honesty and speed: for each setting, adversarial random
+//! targets (the deepest robot and object contacts, from exact shape queries, and how far a
+//! finger passes its travel), the slip of a lifted cube held for 20 s, and control steps/s.
+//! Used to choose the defaults in `PhysicsConfig` and `world::build_world`.
+//!
+//! `cargo run --release -p equigym-envs --example physics_sweep -- [episodes]`
+
 use std::time::Instant;
+
 use equigym_envs::experts::{make_expert, ExpertOptions};
+use equigym_envs::math::from_pose;
 use equigym_envs::rng::EpisodeRng;
+use equigym_envs::world::deepest_penetration;
 use equigym_envs::{Env, EnvConfig};
+use rapier3d::prelude::ColliderHandle;
+
+struct Setting {
+    name: &'static str,
+    iterations: usize,
+    substeps: usize,
+    static_hz: f32,
+    contact_hz: f32,
+    armature: f64,
+}
+
+fn configure(env: &mut Env, s: &Setting) {
+    let ip = &mut env.scene_mut().world.integration_parameters;
+    ip.static_contact_softness.natural_frequency = s.static_hz;
+    ip.contact_softness.natural_frequency = s.contact_hz;
+}
+
+fn config(s: &Setting, horizon: usize) -> EnvConfig {
+    let mut cfg = EnvConfig::new("lift");
+    cfg.physics.solver_iterations = s.iterations;
+    cfg.physics.substeps = s.substeps;
+    cfg.physics.timestep = 0.05 / s.substeps as f64;
+    cfg.horizon = Some(horizon);
+    cfg.physics.joint_armature = s.armature;
+    cfg.physics.finger_armature = s.armature;
+    cfg
+}
 
 fn main() {
-    for (iters, force, substeps) in [(4, 25.0, 12), (4, 40.0, 12), (6, 25.0, 12), (4, 25.0, 16)] {
-        let mut cfg = EnvConfig::new("lift");
-        cfg.physics.solver_iterations = iters;
-        cfg.physics.max_hand_force = force;
-        cfg.physics.substeps = substeps;
-        cfg.physics.timestep = 0.05 / substeps as f64;
-        let mut env = Env::new(cfg).unwrap();
-        let mut rng = EpisodeRng::from_seed(2024);
-        let top = env.scene().table_top;
-        let mut deepest: f64 = 0.0;
+    let episodes: u64 = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(4);
+    let settings = [
+        Setting { name: "contacts 240 / 960 Hz", iterations: 4, substeps: 12, static_hz: 960.0, contact_hz: 240.0, armature: 0.1 },
+        Setting { name: "contacts 480 / 960 Hz", iterations: 4, substeps: 12, static_hz: 960.0, contact_hz: 480.0, armature: 0.1 },
+        Setting { name: "contacts 480 / 1920 Hz", iterations: 4, substeps: 12, static_hz: 1920.0, contact_hz: 480.0, armature: 0.1 },
+    ];
+    println!("| setting | deepest robot (mm) | deepest object (mm) | finger past travel (mm) | 20 s hold slip, max (mm) | adversarial steps/s |");
+    println!("|---|---|---|---|---|---|");
+    for s in &settings {
+        let mut env = Env::new(config(s, 400)).unwrap();
+        let mut rng = EpisodeRng::from_seed(4242);
+        let (mut robot, mut object, mut finger) = (0.0f64, 0.0f64, 0.0f64);
+        let mut steps = 0usize;
         let t0 = Instant::now();
-        let mut n = 0;
-        for ep in 0..40 {
-            env.reset(ep).unwrap();
-            let (lo, hi) = env.action_bounds();
+        for ep in 0..episodes {
+            env.reset(1000 + ep).unwrap();
+            configure(&mut env, s);
+            let objects: Vec<ColliderHandle> = env.task().objects().iter().flat_map(|o| o.colliders.clone()).collect();
+            let table = env.scene().statics.table;
+            let top = env.task().scene_spec().table.top;
+            let mut a = [0.0; 10];
             for t in 0..400 {
-                let c = env.observe()[0..3].to_vec();
-                let mut a: [f64; 10] = std::array::from_fn(|k| rng.uniform(lo[k], hi[k]));
-                if t % 3 != 0 {
-                    a[0] = c[0] + rng.uniform(-0.03, 0.03);
-                    a[1] = c[1] + rng.uniform(-0.03, 0.03);
-                    a[2] = top - rng.uniform(0.0, 0.1);
-                    a[9] = if rng.uniform(0.0, 1.0) < 0.5 { 0.0 } else { 0.08 };
+                if t % 8 == 0 {
+                    for k in 0..3 {
+                        a[k] = rng.uniform(-1.2, 1.2);
+                    }
+                    if rng.uniform(0.0, 1.0) < 0.7 {
+                        a[0] = rng.uniform(-0.35, 0.35);
+                        a[1] = rng.uniform(-0.35, 0.35);
+                        a[2] = top + rng.uniform(-0.15, 0.2);
+                    }
+                    for v in a.iter_mut().take(9).skip(3) {
+                        *v = rng.normal();
+                    }
+                    a[9] = rng.uniform(-0.05, 0.15);
                 }
                 env.step(&a).unwrap();
-                n += 1;
-                let cube = &env.task().objects()[0];
-                let pose = equigym_envs::math::from_pose(env.scene().world.bodies[cube.body].position());
-                let h = cube.half_extents;
-                for sx in [-1.0, 1.0] { for sy in [-1.0, 1.0] { for sz in [-1.0, 1.0] {
-                    let p = pose * nalgebra::Point3::new(sx * h.x, sy * h.y, sz * h.z);
-                    if p.x.abs() < 0.4 && p.y.abs() < 0.4 && pose.translation.x.abs() < 0.37 && pose.translation.y.abs() < 0.37 { deepest = deepest.max(top - p.z); }
-                }}}
-            }
-        }
-        let adv_rate = n as f64 / t0.elapsed().as_secs_f64();
-        let mut wins = 0;
-        let t1 = Instant::now();
-        let mut steps = 0;
-        for seed in 0..100 {
-            let mut ex = make_expert("lift", ExpertOptions::default()).unwrap();
-            env.reset(seed).unwrap();
-            ex.reset(&env, seed);
-            for _ in 0..150 {
-                let a = ex.act(&env);
                 steps += 1;
-                if env.step(&a).unwrap().evaluation.success { wins += 1; break; }
+                let scene = env.scene();
+                let mut obstacles = objects.clone();
+                obstacles.push(table);
+                robot = robot.max(deepest_penetration(&scene.world, scene.rig.colliders(), &obstacles));
+                object = object.max(deepest_penetration(&scene.world, objects.iter().copied(), &[table]));
+                for (f, x) in scene.robot().fingers.iter().zip(scene.finger_positions()) {
+                    finger = finger.max((f.lower - x).max(x - f.upper));
+                }
             }
         }
-        println!("iters {iters} force {force} substeps {substeps}: deepest {:.2} mm, adversarial {adv_rate:.0} steps/s, expert {wins}/100 at {:.0} steps/s",
-            deepest * 1e3, steps as f64 / t1.elapsed().as_secs_f64());
+        let rate = steps as f64 / t0.elapsed().as_secs_f64();
+        // Hold: lift, then 400 control steps (20 s) holding the last action.
+        let mut slip: f64 = 0.0;
+        let mut env = Env::new(config(s, 800)).unwrap();
+        let mut expert = make_expert("lift", ExpertOptions::default()).unwrap();
+        for seed in 100..100 + episodes {
+            env.reset(seed).unwrap();
+            configure(&mut env, s);
+            expert.reset(&env, seed);
+            let mut action = env.current_target();
+            let mut lifting = 0;
+            while lifting < 40 && env.elapsed_steps() < 400 {
+                action = expert.act(&env);
+                env.step(&action).unwrap();
+                lifting += (expert.phase() == "lift") as usize;
+            }
+            let rel = |env: &Env| env.scene().tcp_pose().inverse() * from_pose(env.scene().world.bodies[env.task().objects()[0].body].position());
+            let start = rel(&env);
+            for _ in 0..400 {
+                env.step(&action).unwrap();
+            }
+            slip = slip.max((rel(&env).translation.vector - start.translation.vector).norm());
+        }
+        println!("| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} |", s.name, robot * 1e3, object * 1e3, finger.max(0.0) * 1e3, slip * 1e3, rate);
     }
 }

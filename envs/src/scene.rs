@@ -19,7 +19,7 @@ use crate::math::{from_pose, from_vector, to_pose, to_vector};
 use crate::robot::controller::{seed_bank, worse, ControlContext};
 use crate::robot::kinematics::MAX_DOF;
 use crate::robot::{Controller, IkOptions, IkReport, RobotModel, RobotRig};
-use crate::world::{build_world, PhysicsConfig, TableSpec};
+use crate::world::{build_world, PhysicsConfig, TableSpec, WorldColliders};
 
 pub use crate::world::{colour_code, link_shape, GROUP_OBJECT, GROUP_ROBOT, GROUP_STATIC};
 
@@ -30,6 +30,8 @@ const TWIST_DAMPING: f64 = 1e-3;
 pub struct Scene {
     pub world: PhysicsWorld,
     pub rig: RobotRig,
+    /// The table's and the floor's colliders.
+    pub statics: WorldColliders,
     pub config: PhysicsConfig,
     controller: Controller,
     /// Commanded finger travel (half the opening), rate limited.
@@ -59,7 +61,7 @@ impl Scene {
     /// fingers.
     pub fn new(robot: Arc<RobotModel>, base: Isometry3<f64>, home: &[f64], table: TableSpec, config: PhysicsConfig) -> Result<Self> {
         config.validate()?;
-        let mut world = build_world(&config, &table);
+        let (mut world, statics) = build_world(&config, &table);
         let open = robot.fingers[0].upper;
         let rig = RobotRig::spawn(&mut world, robot.clone(), base, home, open, &config)?;
         let ik = IkOptions { joint_limits: config.joint_limits, ..IkOptions::default() };
@@ -68,7 +70,7 @@ impl Scene {
         rig.clamp_to_limits(&mut q);
         let ctx = ControlContext { model: &robot, base: &base, ik: &ik, seeds: &seeds, period: config.control_period() };
         let controller = Controller::new(config.cartesian_control, &ctx, &q);
-        Ok(Self { world, rig, config, controller, finger_cmd: open, ik, seeds })
+        Ok(Self { world, rig, statics, config, controller, finger_cmd: open, ik, seeds })
     }
 
     pub fn robot(&self) -> &Arc<RobotModel> {
@@ -88,6 +90,8 @@ impl Scene {
         let mut q = q.to_vec();
         self.rig.clamp_to_limits(&mut q);
         self.rig.place(&mut self.world, &q, [finger_travel; 2]);
+        let world = &mut self.world;
+        world.bodies.propagate_modified_body_positions_to_colliders(&mut world.colliders);
         let f = &self.rig.model.fingers[0];
         self.finger_cmd = finger_travel.clamp(f.lower, f.upper);
         let ctx = self.context();
@@ -174,6 +178,10 @@ impl Scene {
             self.rig.set_finger_targets(&mut self.world, self.finger_cmd);
             self.world.step();
             self.rig.clamp_joint_velocities(&mut self.world);
+            if self.rig.enforce_position_limits(&mut self.world) {
+                let world = &mut self.world;
+                world.bodies.propagate_modified_body_positions_to_colliders(&mut world.colliders);
+            }
         }
         self.controller = controller;
         fit

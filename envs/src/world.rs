@@ -23,6 +23,13 @@ pub const GROUP_STATIC: Group = Group::GROUP_3;
 /// `FIRST_LINK_GROUP_BIT + k`).
 pub const FIRST_LINK_GROUP_BIT: u32 = 4;
 
+/// Penetration rapier leaves uncorrected (m).
+pub const ALLOWED_PENETRATION: f32 = 0.0002;
+/// Natural frequency (Hz) of contacts between two moving bodies.
+pub const CONTACT_FREQUENCY: f32 = 480.0;
+/// Natural frequency (Hz) of contacts against the table and other fixed bodies.
+pub const STATIC_CONTACT_FREQUENCY: f32 = 1920.0;
+
 /// Physics and actuation settings. The defaults are the ones the shipped tasks are tuned for.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -39,6 +46,11 @@ pub struct PhysicsConfig {
     pub joint_stiffness: f64,
     /// Damping of the arm's joint servos (N m s / rad).
     pub joint_damping: f64,
+    /// Reflected rotor inertia of each arm joint (kg m^2), added to the joint-space inertia
+    /// (MuJoCo's `armature`).
+    pub joint_armature: f64,
+    /// Reflected inertia of each finger's drive (kg).
+    pub finger_armature: f64,
     /// Cap on each finger's force (N); the URDF effort limit caps it too.
     pub max_finger_force: f64,
     /// Finger travel speed (m/s); the URDF velocity limit caps it too.
@@ -62,6 +74,8 @@ impl Default for PhysicsConfig {
             friction: 1.0,
             joint_stiffness: 2000.0,
             joint_damping: 100.0,
+            joint_armature: 0.1,
+            finger_armature: 0.1,
             max_finger_force: 70.0,
             finger_speed: 0.2,
             joint_limits: true,
@@ -89,8 +103,10 @@ impl PhysicsConfig {
                 return Err(EnvError::InvalidConfig(format!("{name} must be positive and finite, got {v}")));
             }
         }
-        if !(self.joint_damping.is_finite() && self.joint_damping >= 0.0) {
-            return Err(EnvError::InvalidConfig(format!("joint_damping must be finite and >= 0, got {}", self.joint_damping)));
+        for (name, v) in [("joint_damping", self.joint_damping), ("joint_armature", self.joint_armature), ("finger_armature", self.finger_armature)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(EnvError::InvalidConfig(format!("{name} must be finite and >= 0, got {v}")));
+            }
         }
         if self.timestep > 0.05 {
             return Err(EnvError::InvalidConfig(format!("timestep must be at most 0.05 s, got {}", self.timestep)));
@@ -116,8 +132,15 @@ pub fn colour_code(rgb: [u8; 3]) -> u128 {
     ((rgb[0] as u128) << 16) | ((rgb[1] as u128) << 8) | rgb[2] as u128 | (1u128 << 32)
 }
 
+/// Colliders of the static world.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WorldColliders {
+    pub table: ColliderHandle,
+    pub floor: ColliderHandle,
+}
+
 /// An empty world with the solver settings of `config`, a table and a floor.
-pub fn build_world(config: &PhysicsConfig, table: &TableSpec) -> PhysicsWorld {
+pub fn build_world(config: &PhysicsConfig, table: &TableSpec) -> (PhysicsWorld, WorldColliders) {
     let mut world = PhysicsWorld::new();
     world.gravity = Vector::new(0.0, 0.0, -9.81);
     let ip = &mut world.integration_parameters;
@@ -129,18 +152,22 @@ pub fn build_world(config: &PhysicsConfig, table: &TableSpec) -> PhysicsWorld {
     // bodies with velocities friction has not yet acted on, and anything held by friction
     // alone creeps under gravity by g * dt / iterations (about 1 cm/s).
     ip.friction_in_bias_pass = true;
-    // rapier tolerates 5 mm of penetration by default; objects of 4 cm need tighter contact.
-    ip.normalized_allowed_linear_error = 0.001;
-    // Stiffer contacts against the table: a light cube pressed by the hand sinks < 2 mm
-    // (60 Hz, the default, lets it sink ~5 mm).
-    ip.static_contact_softness.natural_frequency = 120.0;
+    // rapier tolerates 5 mm of penetration by default; objects of 4 cm need tighter contact
+    // (at 1 mm a cube crushed onto the table by the arm settled 3.6 mm deep).
+    ip.normalized_allowed_linear_error = ALLOWED_PENETRATION;
+    // Contact stiffness scales with the lighter body's mass (k = m (2 pi f)^2), so a 70 g cube
+    // crushed by the arm's 87 N m joints needs stiff contacts: at rapier's defaults (30 Hz
+    // between bodies, 60 Hz against the table) an arm link went 37 mm into a cube and a cube
+    // 11 mm into the table (`examples/physics_sweep.rs`).
+    ip.contact_softness.natural_frequency = CONTACT_FREQUENCY;
+    ip.static_contact_softness.natural_frequency = STATIC_CONTACT_FREQUENCY;
 
     let static_groups = InteractionGroups::new(GROUP_STATIC, GROUP_ROBOT | GROUP_OBJECT, InteractionTestMode::And);
     // The table is a solid block down to the floor: a thin top lets a squeezed object tunnel
     // through, while a block always pushes it back out through the top.
     let thickness = table.top as f32;
     let body = world.insert_body(RigidBodyBuilder::fixed().translation(Vector::new(0.0, 0.0, table.top as f32 - thickness / 2.0)));
-    world.insert_collider(
+    let table = world.insert_collider(
         ColliderBuilder::cuboid(table.half_extents[0] as f32, table.half_extents[1] as f32, thickness / 2.0)
             .friction(config.friction as f32)
             .collision_groups(static_groups)
@@ -149,11 +176,35 @@ pub fn build_world(config: &PhysicsConfig, table: &TableSpec) -> PhysicsWorld {
     );
     // A floor far below catches anything that falls off the table.
     let floor = world.insert_body(RigidBodyBuilder::fixed().translation(Vector::new(0.0, 0.0, -0.05)));
-    world.insert_collider(
+    let floor = world.insert_collider(
         ColliderBuilder::cuboid(3.0, 3.0, 0.05).collision_groups(static_groups).user_data(colour_code([90, 90, 100])),
         Some(floor),
     );
-    world
+    (world, WorldColliders { table, floor })
+}
+
+/// Penetration depth (m) of two colliders at their current poses, from an exact shape query
+/// (rapier's reported contact depths lag by a step and miss pairs the narrow phase has not
+/// seen yet); 0 when they are apart.
+pub fn penetration_depth(world: &PhysicsWorld, a: ColliderHandle, b: ColliderHandle) -> f64 {
+    let (Some(ca), Some(cb)) = (world.colliders.get(a), world.colliders.get(b)) else {
+        return 0.0;
+    };
+    match rapier3d::parry::query::contact(ca.position(), ca.shape(), cb.position(), cb.shape(), 0.0) {
+        Ok(Some(c)) => (-c.dist as f64).max(0.0),
+        _ => 0.0,
+    }
+}
+
+/// The deepest penetration between any collider of `a` and any of `b`.
+pub fn deepest_penetration(world: &PhysicsWorld, a: impl IntoIterator<Item = ColliderHandle>, b: &[ColliderHandle]) -> f64 {
+    let mut deepest: f64 = 0.0;
+    for x in a {
+        for y in b {
+            deepest = deepest.max(penetration_depth(world, x, *y));
+        }
+    }
+    deepest
 }
 
 pub fn shape_of(s: &ShapeKind) -> SharedShape {

@@ -129,7 +129,7 @@ fn bad_states_are_rejected_and_leave_the_env_unchanged() {
 fn adversarial_actions_never_explode_or_push_the_cube_into_the_table() {
     let mut env = lift();
     let mut rng = EpisodeRng::from_seed(2024);
-    let table_top = env.scene().table_top;
+    let table_top = env.task().scene_spec().table.top;
     let mut deepest: f64 = 0.0;
     for episode in 0..8 {
         env.reset(episode).unwrap();
@@ -185,7 +185,8 @@ fn joint_limits_are_never_violated() {
         let a = random_action(&env, &mut rng);
         env.step(&a).unwrap();
         let scene = env.scene();
-        for (q, j) in scene.arm.q_des.iter().chain(&scene.arm.q_meas).zip(scene.robot.joints.iter().cycle()) {
+        let measured = scene.joint_positions();
+        for (q, j) in scene.controller().desired_joints().iter().chain(&measured).zip(scene.robot().joints.iter().cycle()) {
             assert!(*q >= j.lower - 1e-9 && *q <= j.upper + 1e-9, "{} = {q} outside [{}, {}]", j.name, j.lower, j.upper);
         }
     }
@@ -205,7 +206,7 @@ fn joint_limits_can_be_turned_off() {
         let turn = nalgebra::UnitQuaternion::from_axis_angle(&nalgebra::Vector3::z_axis(), 0.1 * k as f64);
         a[3..9].copy_from_slice(&equigym_envs::math::rot6d(&(turn * tcp.rotation)));
         env.step(&a).unwrap();
-        let q7 = env.scene().arm.q_des[6];
+        let q7 = env.scene().joint_positions()[6];
         exceeded |= q7.abs() > 2.9;
     }
     assert!(exceeded, "without limits the wrist should pass 2.9 rad");

@@ -59,7 +59,7 @@ fn stack_success_needs_cube_a_resting_on_cube_b() {
     let mut env = Env::new(EnvConfig::new("stack")).unwrap();
     env.reset(0).unwrap();
     let objects = env.task().objects().to_vec();
-    let top = env.scene().table_top;
+    let top = env.task().scene_spec().table.top;
     // A beside B, on the table: no success.
     place(env.scene_mut(), &objects[1], &yaw_pose(0.1, 0.1, top + stack::HALF_B, 0.0));
     place(env.scene_mut(), &objects[0], &yaw_pose(0.1, -0.1, top + stack::HALF_A, 0.0));
@@ -74,7 +74,7 @@ fn the_nut_goes_down_the_peg_only_through_its_hole() {
     let mut env = Env::new(EnvConfig::new("square")).unwrap();
     env.reset(0).unwrap();
     let objects = env.task().objects().to_vec();
-    let top = env.scene().table_top;
+    let top = env.task().scene_spec().table.top;
     let peg = pose_of(env.scene(), &objects[1]).translation.vector;
     let above = top + 2.0 * square::PEG_HALF[2] + 0.03;
     // Dropped with the hole over the peg (any yaw), the nut slides down onto the table.

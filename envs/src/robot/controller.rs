@@ -24,6 +24,13 @@ use crate::math::clamp_norm;
 
 /// How far the commanded joints may run ahead of the measured ones (rad).
 const MAX_JOINT_LEAD: f64 = 0.15;
+/// Fraction of each joint's velocity limit the joint-space command moves at, leaving the
+/// servos headroom to catch up their lag without passing the limit.
+const JOINT_SPEED_FRACTION: f64 = 0.9;
+/// Acceleration limit of the joint-space command (rad/s^2), the smallest of the Panda's
+/// published joint limits (7.5-20). Without one the servos lagged a command that jumped to full
+/// speed and then caught up at up to 1.14x the velocity limit over a 50 ms control step.
+const MAX_JOINT_ACCELERATION: f64 = 7.5;
 /// How far the commanded TCP may run ahead of the actual one (m, rad).
 const MAX_TCP_LEAD: f64 = 0.05;
 const MAX_TCP_LEAD_ANGLE: f64 = 0.25;
@@ -77,6 +84,8 @@ pub struct JointSpace {
     /// Commanded joints at the start and end of the planned period.
     pub q_start: Vec<f64>,
     pub q_end: Vec<f64>,
+    /// Commanded joint velocities of the planned period (acceleration limited).
+    pub qd_cmd: Vec<f64>,
 }
 
 impl ArmController for JointSpace {
@@ -84,6 +93,7 @@ impl ArmController for JointSpace {
         self.q_des = q.to_vec();
         self.q_start = q.to_vec();
         self.q_end = q.to_vec();
+        self.qd_cmd = vec![0.0; q.len()];
     }
 
     fn plan(&mut self, ctx: &ControlContext, q_meas: &[f64], target: &Isometry3<f64>) -> IkReport {
@@ -92,9 +102,19 @@ impl ArmController for JointSpace {
         for k in 0..n {
             self.q_start[k] = self.q_end[k].clamp(q_meas[k] - MAX_JOINT_LEAD, q_meas[k] + MAX_JOINT_LEAD);
         }
+        let (t, dv) = (ctx.period, MAX_JOINT_ACCELERATION * ctx.period);
         for k in 0..n {
-            let max = ctx.model.joints[k].max_velocity * ctx.period;
-            self.q_end[k] = self.q_start[k] + (self.q_des[k] - self.q_start[k]).clamp(-max, max);
+            let v_max = JOINT_SPEED_FRACTION * ctx.model.joints[k].max_velocity;
+            let err = self.q_des[k] - self.q_start[k];
+            // The fastest speed from which the joint can still stop at the target.
+            let v_stop = (2.0 * MAX_JOINT_ACCELERATION * err.abs()).sqrt();
+            let v_goal = (err / t).clamp(-v_stop, v_stop).clamp(-v_max, v_max);
+            let mut v = self.qd_cmd[k] + (v_goal - self.qd_cmd[k]).clamp(-dv, dv);
+            if (v * t).abs() >= err.abs() && v * err >= 0.0 {
+                v = err / t;
+            }
+            self.qd_cmd[k] = v;
+            self.q_end[k] = self.q_start[k] + v * t;
         }
         ctx.clamp(&mut self.q_end);
         fit
@@ -116,6 +136,8 @@ impl ArmController for JointSpace {
             worst = worse(worst, ctx.solve(&target, q));
         }
         self.q_start = self.q_end.clone();
+        // Joint velocities of the moved arm differ; the command restarts from rest.
+        self.qd_cmd.iter_mut().for_each(|v| *v = 0.0);
         worst
     }
 }
@@ -207,7 +229,7 @@ impl Controller {
                 q_cmd: Vec::new(),
             })
         } else {
-            Controller::Joint(JointSpace { q_des: Vec::new(), q_start: Vec::new(), q_end: Vec::new() })
+            Controller::Joint(JointSpace::default())
         };
         c.get().reset(ctx, q);
         c

@@ -4,7 +4,10 @@
 //!   multibody joint with the URDF's position limits, and the two fingers are prismatic joints
 //!   of the last link (the hand's link; fixed joints are folded into it). A finger therefore
 //!   cannot leave its axis or its travel, and the hand is exactly where the joint state puts it.
-//! - **Mass.** Every link carries its URDF mass, centre of mass and principal inertia.
+//! - **Mass.** Every link carries its URDF mass, centre of mass and principal inertia; each
+//!   joint adds the reflected inertia of its drive ([`PhysicsConfig::joint_armature`],
+//!   [`PhysicsConfig::finger_armature`]), which also keeps the 15 g fingers from being
+//!   squeezed out of their travel between the arm and the table (see `examples/physics_sweep.rs`).
 //! - **Actuation.** Each joint has a force-based position servo (stiffness, damping) whose
 //!   torque is capped at the URDF effort limit (87 N m for joints 1-4, 12 N m for 5-7; 70 N per
 //!   finger). rapier does not cap joint speeds, so [`RobotRig::clamp_joint_velocities`] holds
@@ -13,9 +16,14 @@
 //!   gravity compensation, as robosuite's controllers add the gravity torques before clipping
 //!   to the torque limits. Objects keep their weight, so what the fingers hold loads the joints.
 //! - **Collisions.** Every link has colliders (the URDF's primitives) that touch the table and the
-//!   objects. Adjacent links never collide (their joint disables it); other link pairs collide
-//!   when [`PhysicsConfig::self_collision`] is on, except pairs closer than
-//!   [`SELF_COLLISION_MIN_GAP`] along the chain, whose primitive shapes overlap at the joint.
+//!   objects. Link pairs at least [`SELF_COLLISION_MIN_GAP`] joints apart collide with each other
+//!   when [`PhysicsConfig::self_collision`] is on (the fingers never touch the arm), except pairs whose primitive shapes are
+//!   already within [`SELF_COLLISION_MARGIN`] of each other in the posture the robot is spawned
+//!   in (the "default in collision" rule of robot setup tools; none for the shipped Panda, see
+//!   [`RobotRig::self_collision_exclusions`]). Neighbours and grand-neighbours do not: the
+//!   URDF's coarse capsules of link 5 and the hand touch at joint 6 = 3.67 rad, inside the real
+//!   range (limit 3.75), where the real links clear each other, and that contact kept 3 of 40
+//!   random reachable targets out of reach (`envs/tests/physics.rs`).
 
 use std::sync::Arc;
 
@@ -35,9 +43,11 @@ pub const FINGER_PAD_FRICTION: f64 = 2.0;
 const FINGER_STIFFNESS: f32 = 2000.0;
 const FINGER_DAMPING: f32 = 40.0;
 
-/// Link pairs closer than this along the chain never collide with each other: the primitive
-/// shapes of links k and k + 2 (and of the hand and link 5) overlap around the joints between
-/// them in ordinary postures (measured by `envs/tests/physics.rs::self_collision_pairs_are_free_at_home`).
+/// Link pairs whose shapes are closer than this (m) in the spawn posture never collide with
+/// each other.
+pub const SELF_COLLISION_MARGIN: f64 = 0.005;
+/// Link pairs fewer joints apart than this never collide with each other (the fingers count
+/// as one link after the last).
 pub const SELF_COLLISION_MIN_GAP: usize = 3;
 
 /// Colours of the links, alternating along the chain; the fingers are dark.
@@ -82,14 +92,13 @@ fn mass_properties(i: &LinkInertia, offset: &Isometry3<f64>, what: &str) -> Resu
     Ok(MassProperties::new(to_vector(&i.centre_of_mass), i.mass as f32, to_vector(&i.principal_inertia)).transform_by(&to_pose(offset)))
 }
 
-fn link_groups(index: usize, count: usize, self_collision: bool) -> InteractionGroups {
+/// Collision groups of self-collision index `index` given which index pairs may collide.
+fn link_groups(index: usize, allowed: &[Vec<bool>]) -> InteractionGroups {
     let bit = |k: usize| Group::from_bits_truncate(1 << (FIRST_LINK_GROUP_BIT as usize + k));
     let mut filter = GROUP_OBJECT | GROUP_STATIC;
-    if self_collision {
-        for other in 0..count {
-            if other.abs_diff(index) >= SELF_COLLISION_MIN_GAP {
-                filter |= bit(other);
-            }
+    for (other, ok) in allowed[index].iter().enumerate() {
+        if *ok {
+            filter |= bit(other);
         }
     }
     InteractionGroups::new(GROUP_ROBOT | bit(index), filter, InteractionTestMode::And)
@@ -115,8 +124,10 @@ impl RobotRig {
         }
         // Bodies of each arm frame with the links (and, last, the hand) attached to it.
         let frames = dof + 1;
-        // Fingers share the self-collision index after the hand's link.
+        // One self-collision index per arm frame (the fingers take the next, unused one). Until
+        // the exclusions are known (below), nothing collides with anything of the robot.
         let group_count = frames + 1;
+        let none = vec![vec![false; group_count]; group_count];
         let robot_friction = config.friction as f32;
         let mut link_bodies = Vec::with_capacity(frames);
         let mut link_colliders = Vec::with_capacity(frames);
@@ -131,7 +142,7 @@ impl RobotRig {
             }
             let builder = if frame == 0 { RigidBodyBuilder::fixed().pose(to_pose(&base)) } else { RigidBodyBuilder::dynamic() };
             let body = world.insert_body(builder.gravity_scale(0.0).can_sleep(false).additional_mass_properties(mprops));
-            let groups = link_groups(frame, group_count, config.self_collision);
+            let groups = link_groups(frame, &none);
             let colour = colour_code(LINK_COLOURS[frame % 2]);
             let mut cols = Vec::new();
             for link in model.links.iter().filter(|l| l.frame == frame) {
@@ -175,7 +186,10 @@ impl RobotRig {
         }
 
         let hand_body = link_bodies[dof];
-        let finger_groups = link_groups(frames, group_count, config.self_collision);
+        // The fingers touch the table and the objects, never the arm: in rapier (4 solver
+        // iterations) a contact between a finger and the forearm, both links of one multibody,
+        // pushed the finger 30 mm through its joint limit.
+        let finger_groups = link_groups(frames, &none);
         let finger_force = config.max_finger_force;
         let mut finger_bodies = Vec::new();
         let mut finger_joints = Vec::new();
@@ -243,8 +257,61 @@ impl RobotRig {
         for k in 0..2 {
             rig.finger_dofs[k] = dof_of(world, rig.finger_joints[k]).ok_or_else(|| EnvError::InvalidConfig("the arm multibody lost a finger".into()))?;
         }
+        {
+            let (arm_dofs, finger_dofs) = (rig.arm_dofs.clone(), rig.finger_dofs);
+            let mb = rig.multibody_mut(world);
+            let armature = mb.armature_mut();
+            for d in arm_dofs {
+                armature[d] = config.joint_armature as f32;
+            }
+            for d in finger_dofs {
+                armature[d] = config.finger_armature as f32;
+            }
+        }
         rig.place(world, q0, [finger0; 2]);
+        let PhysicsWorld { bodies, colliders, .. } = world;
+        bodies.propagate_modified_body_positions_to_colliders(colliders);
+        if config.self_collision {
+            let mut allowed = vec![vec![false; group_count]; group_count];
+            for (i, row) in allowed.iter_mut().enumerate().take(frames) {
+                for (j, ok) in row.iter_mut().enumerate().take(frames) {
+                    *ok = i.abs_diff(j) >= SELF_COLLISION_MIN_GAP;
+                }
+            }
+            for (i, j) in rig.self_collision_exclusions(world) {
+                allowed[i][j] = false;
+                allowed[j][i] = false;
+            }
+            let groups = rig.link_colliders.clone();
+            for (index, handles) in groups.iter().enumerate() {
+                for h in handles {
+                    world.colliders[*h].set_collision_groups(link_groups(index, &allowed));
+                }
+            }
+        }
         Ok(rig)
+    }
+
+    /// Pairs of arm frames at least [`SELF_COLLISION_MIN_GAP`] apart (arm frames, then the fingers) whose
+    /// shapes are within [`SELF_COLLISION_MARGIN`] of each other in the current posture.
+    pub fn self_collision_exclusions(&self, world: &PhysicsWorld) -> Vec<(usize, usize)> {
+        let groups = &self.link_colliders;
+        let mut out = Vec::new();
+        for i in 0..groups.len() {
+            for j in i + SELF_COLLISION_MIN_GAP..groups.len() {
+                let close = groups[i].iter().any(|a| {
+                    groups[j].iter().any(|b| {
+                        let (ca, cb) = (&world.colliders[*a], &world.colliders[*b]);
+                        rapier3d::parry::query::distance(ca.position(), ca.shape(), cb.position(), cb.shape())
+                            .is_ok_and(|d| (d.distance as f64) < SELF_COLLISION_MARGIN)
+                    })
+                });
+                if close {
+                    out.push((i, j));
+                }
+            }
+        }
+        out
     }
 
     pub fn dof(&self) -> usize {
@@ -404,6 +471,48 @@ impl RobotRig {
             let max = f.max_velocity as f32;
             v[*d] = v[*d].clamp(-max, max);
         }
+    }
+
+    /// Project joints that the solver left outside their position limits (and fingers outside
+    /// their travel) back onto the limit, with no velocity further out. Why: rapier solves a
+    /// multibody's limit constraints together with the contacts in a few iterations, and a hand
+    /// pressed onto the table by the 87 N m shoulder dragged a 15 g finger up to 56 mm past its
+    /// travel along a tilted axis (`examples/physics_sweep.rs`). Returns whether anything moved.
+    pub fn enforce_position_limits(&self, world: &mut PhysicsWorld) -> bool {
+        let model = self.model.clone();
+        let mut bounds: Vec<(usize, f64, f64, f64)> = Vec::with_capacity(self.dof() + 2);
+        let mut q = vec![0.0; self.dof()];
+        self.joint_positions(world, &mut q);
+        if self.joint_limits {
+            for (k, j) in model.joints.iter().enumerate() {
+                bounds.push((self.arm_dofs[k], q[k], j.lower, j.upper));
+            }
+        }
+        let fingers = self.finger_positions(world);
+        for k in 0..2 {
+            bounds.push((self.finger_dofs[k], fingers[k], model.fingers[k].lower, model.fingers[k].upper));
+        }
+        if bounds.iter().all(|(_, x, lo, hi)| x >= lo && x <= hi) {
+            return false;
+        }
+        let PhysicsWorld { multibody_joints, bodies, .. } = world;
+        let Some((mb, _)) = multibody_joints.get_mut(self.arm_joints[0]) else { return false };
+        let mut disp = vec![0.0f32; mb.ndofs()];
+        for (d, x, lo, hi) in &bounds {
+            if x < lo {
+                disp[*d] = (lo - x) as f32;
+                let v = mb.generalized_velocity()[*d];
+                mb.generalized_velocity_mut()[*d] = v.max(0.0);
+            } else if x > hi {
+                disp[*d] = (hi - x) as f32;
+                let v = mb.generalized_velocity()[*d];
+                mb.generalized_velocity_mut()[*d] = v.min(0.0);
+            }
+        }
+        mb.apply_displacements(&disp);
+        mb.forward_kinematics(bodies, false);
+        mb.update_rigid_bodies(bodies, false);
+        true
     }
 
     /// All colliders of the robot: links, hand and fingers.

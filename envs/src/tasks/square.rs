@@ -117,11 +117,21 @@ impl Task for Square {
     }
 
     fn initialise_episode(&mut self, scene: &mut Scene, rng: &mut EpisodeRng) {
-        let spots = common::sample_separated(rng, &[self.nut_range, self.peg_range], &[0.1, 0.03]);
-        let (x, y, yaw) = spots[0];
-        common::place(scene, &self.objects[0], &common::yaw_pose(x, y, TABLE_TOP + NUT_HALF_HEIGHT, yaw));
-        let (x, y, yaw) = spots[1];
-        let peg = common::yaw_pose(x, y, TABLE_TOP + PEG_HALF[2], yaw);
+        // Resample placements that would start inside the robot (the peg is as tall as the hand
+        // is high at home).
+        let mut nut = Isometry3::identity();
+        let mut peg = Isometry3::identity();
+        for _ in 0..common::MAX_PLACEMENT_DRAWS {
+            let spots = common::sample_separated(rng, &[self.nut_range, self.peg_range], &[0.1, 0.03]);
+            let (x, y, yaw) = spots[0];
+            nut = common::yaw_pose(x, y, TABLE_TOP + NUT_HALF_HEIGHT, yaw);
+            let (x, y, yaw) = spots[1];
+            peg = common::yaw_pose(x, y, TABLE_TOP + PEG_HALF[2], yaw);
+            if common::clear_of_robot(scene, &self.objects[0], &nut) && common::clear_of_robot(scene, &self.objects[1], &peg) {
+                break;
+            }
+        }
+        common::place(scene, &self.objects[0], &nut);
         // A fixed body is moved by setting its pose; its colliders follow at the next step.
         common::place(scene, &self.objects[1], &peg);
     }
