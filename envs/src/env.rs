@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{check_finite, EnvError, Result};
 use crate::layout::Layout;
 use crate::math::rotation_from_rot6d;
+use crate::options::EnvSpec;
 use crate::rng::EpisodeRng;
 use crate::robot::{load_urdf, parse_urdf, IkReport, RobotModel};
 use crate::scene::{PhysicsConfig, Scene};
@@ -50,7 +51,7 @@ impl EnvConfig {
             reward: RewardKind::Sparse,
             physics: PhysicsConfig::default(),
             urdf: None,
-            init_joint_noise: 0.02,
+            init_joint_noise: crate::options::DEFAULT_INIT_JOINT_NOISE,
             horizon: None,
             task_options: TaskOptions::default(),
         }
@@ -173,6 +174,21 @@ impl Env {
     }
     pub fn max_gripper_width(&self) -> f64 {
         self.scene.robot.max_gripper_width()
+    }
+
+    /// The read-only description of this environment (task, horizon, bounds, layouts).
+    pub fn spec(&self) -> EnvSpec {
+        let (action_low, action_high) = self.action_bounds();
+        EnvSpec {
+            task: self.task.id(),
+            horizon: self.horizon,
+            control_period: self.config.physics.control_period(),
+            max_gripper_width: self.max_gripper_width(),
+            action_low,
+            action_high,
+            observation_layout: self.observation_layout().clone(),
+            action_layout: self.action_layout(),
+        }
     }
 
     /// Lower and upper bounds of the raw action.

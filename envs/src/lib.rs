@@ -17,8 +17,9 @@
 //! ```
 //!
 //! Modules by domain: [`robot`] (URDF, kinematics, IK), [`scene`] (physics world and arm
-//! controller), [`tasks`] (Lift, ...), [`env`] (reset/step/state), [`batch`] (B environments on a thread pool, auto-reset), [`experts`] (scripted
-//! demonstrators), [`render`] (CPU ray caster), [`layout`] (named observation slices).
+//! controller), [`tasks`] (Lift, ...), [`env`] (reset/step/state), [`batch`] (B environments on a thread pool, auto-reset),
+//! [`options`] (the one options type and the read-only spec), [`rng`] (seed streams and their
+//! tags), [`experts`] (scripted demonstrators), [`render`] (CPU ray caster), [`layout`] (named observation slices).
 
 pub mod batch;
 pub mod env;
@@ -26,6 +27,7 @@ pub mod error;
 pub mod experts;
 pub mod layout;
 pub mod math;
+pub mod options;
 pub mod render;
 pub mod rng;
 pub mod robot;
@@ -36,5 +38,6 @@ pub use batch::{AutoresetMode, BatchEnv, BatchMember, MemberStep};
 pub use env::{Env, EnvConfig, StepResult, ACTION_DIM};
 pub use error::{EnvError, Result};
 pub use layout::{Field, FieldKind, Layout};
+pub use options::{Controller, EnvOptions, EnvSpec};
 pub use scene::PhysicsConfig;
 pub use tasks::{RewardKind, TaskOptions};

@@ -30,7 +30,10 @@ pub const GROUP_OBJECT: Group = Group::GROUP_2;
 pub const GROUP_STATIC: Group = Group::GROUP_3;
 
 /// Physics and actuation settings. The defaults are the ones the shipped tasks are tuned for.
+/// Deserialised field by field (missing fields keep their defaults, unknown ones are errors), so
+/// user options can override any subset (see `crate::options::EnvOptions`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct PhysicsConfig {
     /// Physics timestep (s).
     pub timestep: f64,

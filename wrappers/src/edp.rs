@@ -103,12 +103,17 @@ impl DiffusionPolicy {
     /// Load a policy file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
         let p = path.as_ref();
+        Self::from_bytes(&Self::read_file(p)?, &p.display().to_string())
+    }
+
+    /// The bytes of a policy file (typed errors for a missing or unreadable file).
+    pub fn read_file(path: impl AsRef<Path>) -> Result<Vec<u8>> {
+        let p = path.as_ref();
         let name = p.display().to_string();
-        let bytes = std::fs::read(p).map_err(|e| match e.kind() {
+        std::fs::read(p).map_err(|e| match e.kind() {
             std::io::ErrorKind::NotFound => Error::PolicyNotFound(name.clone()),
             _ => bad(&name, format!("cannot read: {e}")),
-        })?;
-        Self::from_bytes(&bytes, &name)
+        })
     }
 
     /// Load from the bytes of a policy file (`origin` names it in errors).

@@ -87,6 +87,9 @@ impl LatentEnv {
     pub fn policy(&self) -> &Arc<DiffusionPolicy> {
         &self.policy
     }
+    pub fn ddim_steps(&self) -> usize {
+        self.ddim_steps
+    }
     pub fn bound(&self) -> f64 {
         self.bound
     }
