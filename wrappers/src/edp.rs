@@ -26,6 +26,11 @@ struct Dense {
     n_out: usize,
 }
 
+/// Most layers a policy file may declare (the shipped ones have 3 to 5).
+const MAX_LAYERS: usize = 1024;
+/// Longest action chunk a policy file may declare (the shipped ones have 4).
+const MAX_CHUNK_LEN: usize = 4096;
+
 /// A loaded diffusion policy.
 #[derive(Debug)]
 pub struct DiffusionPolicy {
@@ -148,6 +153,13 @@ impl DiffusionPolicy {
         }
         if num_layers == 0 || chunk_len == 0 || steps == 0 {
             return Err(bad(origin, "empty network, chunk or schedule"));
+        }
+        // Counts come from the file: bound them before they size allocations or products.
+        if num_layers > MAX_LAYERS || chunk_len > MAX_CHUNK_LEN {
+            return Err(bad(
+                origin,
+                format!("{num_layers} layers or a chunk of {chunk_len} exceed the limits ({MAX_LAYERS}, {MAX_CHUNK_LEN})"),
+            ));
         }
         let mut layers = Vec::with_capacity(num_layers);
         for i in 0..num_layers {
