@@ -23,6 +23,13 @@ const THROUGH_TABLE_TOLERANCE: f64 = 0.005;
 
 const PANDA_URDF: &str = equigym_envs::env::PANDA_URDF;
 
+/// The saved-state checksum (FNV-1a, 64-bit, little-endian at the end), recomputed here to
+/// forge states: the format is part of the state's contract.
+const CHECKSUM_LEN: usize = 8;
+fn fnv1a64(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, &b| (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3))
+}
+
 fn cases() -> u32 {
     std::env::var("EQUIGYM_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(DEFAULT_CASES)
 }
@@ -142,6 +149,24 @@ proptest! {
         match env.set_state(&bytes) {
             Ok(()) => step_a_little(&mut env)?,
             Err(EnvError::InvalidState(_)) => prop_assert_eq!(env.get_state().unwrap(), before, "a refused state changed the env"),
+            Err(e) => prop_assert!(false, "set_state gave an untyped error: {e}"),
+        }
+    }
+
+    /// Edited states whose checksum was recomputed (a forged state): the decoder and the
+    /// physics engine behind the checksum. Ignored: rapier trusts its own serialised world (an
+    /// edited pose or shape trips parry's asserts), so this finds panics until the world module
+    /// validates what it restores; run with `cargo test --test fuzz -- --ignored`.
+    #[test]
+    #[ignore = "known limit: the physics engine trusts restored worlds; see docs/reliability.md"]
+    fn fuzz_set_state_forged_checksum(task in prop_oneof![Just("lift"), Just("stack"), Just("square")],
+                                      seed in 0u64..1000, edits in edits()) {
+        let (mut env, state) = some_state(task, seed);
+        let mut bytes = apply(&state[..state.len() - CHECKSUM_LEN], &edits);
+        bytes.extend_from_slice(&fnv1a64(&bytes).to_le_bytes());
+        match env.set_state(&bytes) {
+            Ok(()) => step_a_little(&mut env)?,
+            Err(EnvError::InvalidState(_)) => {}
             Err(e) => prop_assert!(false, "set_state gave an untyped error: {e}"),
         }
     }
