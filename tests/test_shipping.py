@@ -57,6 +57,9 @@ def test_rust_errors_arrive_as_the_python_classes(tmp_path):
         equigym.CoreEnv("lift", init_joint_noise=float("nan"))
     with pytest.raises(equigym.InvalidInputError, match="unknown variant"):
         equigym.CoreEnv("lift", controller="telepathic")
+    # An option a class cannot honour is refused, not dropped.
+    with pytest.raises(equigym.InvalidInputError, match="reward must be 'sparse'"):
+        gymnasium.make("EquiLift-Latent-v0", reward="dense")
 
 
 # -- options --------------------------------------------------------------------------------

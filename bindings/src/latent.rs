@@ -283,7 +283,7 @@ impl LatentVecEnv {
         let envs = (0..num_envs)
             .map(|_| {
                 let env = RustEnv::new(config.clone())?;
-                Ok(RustLatentEnv::new(env, policy.clone(), bound, steps)?)
+                RustLatentEnv::new(env, policy.clone(), bound, steps)
             })
             .collect::<Result<Vec<_>, equigym_wrappers::Error>>()
             .map_err(to_py)?;

@@ -18,7 +18,7 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use crate::env::EnvConfig;
 use crate::error::{EnvError, Result};
 use crate::layout::Layout;
-use crate::scene::PhysicsConfig;
+use crate::PhysicsConfig;
 use crate::tasks::{RewardKind, TaskOptions};
 
 /// Std of the Gaussian noise added to the home joint configuration at reset (rad), by default.

@@ -58,7 +58,8 @@ class EquiLatentEnv(gymnasium.Env):
             :class:`equigym._core.DiffusionPolicy` (shared between envs); default: the shipped one.
         bound: latent bound (actions are clipped to [-bound, bound]).
         ddim_steps: denoising steps (default: the policy's, 5).
-        **options: the environment options of :class:`equigym.EquiEnv` (``reward`` stays sparse):
+        **options: the environment options of :class:`equigym.EquiEnv` (``reward`` must stay sparse:
+            the latent env returns success - 1 per primitive step):
     """
         + OPTIONS_DOC
         + """
