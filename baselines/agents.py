@@ -47,7 +47,9 @@ class LayerNormSACPolicy(SACPolicy):
 
     def make_actor(self, features_extractor=None) -> Actor:
         actor = super().make_actor(features_extractor)
-        actor.latent_pi = ln_mlp(actor.features_dim, list(self.actor_kwargs["net_arch"]), self.activation_fn).to(self.device)
+        actor.latent_pi = ln_mlp(actor.features_dim, list(self.actor_kwargs["net_arch"]), self.activation_fn).to(
+            self.device
+        )
         return actor
 
     def make_critic(self, features_extractor=None):
@@ -70,7 +72,7 @@ class _Group:
     """escnn field types for a task's observation and latent blocks."""
 
     def __init__(self, sym: Symmetry):
-        from escnn import gspaces, group
+        from escnn import group, gspaces
         from escnn import nn as enn
 
         self.enn = enn
@@ -140,8 +142,20 @@ def _radial_squash(u: torch.Tensor, pairs: torch.Tensor, singles: torch.Tensor):
 class EquiActor(BasePolicy):
     """C_N-equivariant squashed Gaussian actor over the latent noise."""
 
-    def __init__(self, observation_space, action_space, features_extractor, features_dim, *, symmetry: Symmetry,
-                 hidden_fields: int, layers: int, residual: bool = False, squash: str = "radial", **_: Any):
+    def __init__(
+        self,
+        observation_space,
+        action_space,
+        features_extractor,
+        features_dim,
+        *,
+        symmetry: Symmetry,
+        hidden_fields: int,
+        layers: int,
+        residual: bool = False,
+        squash: str = "radial",
+        **_: Any,
+    ):
         super().__init__(observation_space, action_space, features_extractor=features_extractor, squash_output=True)
         if squash not in ("radial", "tanh"):
             raise ValueError(f"squash must be 'radial' or 'tanh', got {squash!r}")
@@ -160,7 +174,9 @@ class EquiActor(BasePolicy):
         for b, (_, idx) in enumerate(g.lat_blocks):
             block_of[idx] = b
         self.register_buffer("std_index", torch.tensor(block_of))
-        self.register_buffer("pairs", torch.tensor([idx for f, idx in g.lat_blocks if f == 1], dtype=torch.long).reshape(-1, 2))
+        self.register_buffer(
+            "pairs", torch.tensor([idx for f, idx in g.lat_blocks if f == 1], dtype=torch.long).reshape(-1, 2)
+        )
         self.register_buffer("singles", torch.tensor([idx[0] for f, idx in g.lat_blocks if f == 0], dtype=torch.long))
         self.lat_dim = lat_dim
 
@@ -201,8 +217,20 @@ class EquiActor(BasePolicy):
 class EquiCritic(BaseModel):
     """Twin C_N-invariant Q functions: equivariant trunk on [obs, latent], group pooling, linear."""
 
-    def __init__(self, observation_space, action_space, features_extractor, features_dim, *, symmetry: Symmetry,
-                 hidden_fields: int, layers: int, residual: bool = False, n_critics: int = 2, **_: Any):
+    def __init__(
+        self,
+        observation_space,
+        action_space,
+        features_extractor,
+        features_dim,
+        *,
+        symmetry: Symmetry,
+        hidden_fields: int,
+        layers: int,
+        residual: bool = False,
+        n_critics: int = 2,
+        **_: Any,
+    ):
         super().__init__(observation_space, action_space, features_extractor=features_extractor)
         g = _Group(symmetry)
         self.in_type = g.enn.FieldType(g.gs, g.obs_reps + g.lat_reps)
@@ -247,9 +275,19 @@ class EquiCritic(BaseModel):
 class EquiSACPolicy(SACPolicy):
     """SAC policy with escnn actor and critics (``residual=True`` gives RPP layers)."""
 
-    def __init__(self, *args: Any, symmetry: Symmetry | None = None, task: str | None = None, hidden_fields: int = 32,
-                 layers: int = 3, residual: bool = False, squash: str = "radial",
-                 equi_weight_decay: float = 1e-5, plain_weight_decay: float = 1e-2, **kwargs: Any):
+    def __init__(
+        self,
+        *args: Any,
+        symmetry: Symmetry | None = None,
+        task: str | None = None,
+        hidden_fields: int = 32,
+        layers: int = 3,
+        residual: bool = False,
+        squash: str = "radial",
+        equi_weight_decay: float = 1e-5,
+        plain_weight_decay: float = 1e-2,
+        **kwargs: Any,
+    ):
         if symmetry is None:
             if task is None:
                 raise ValueError("EquiSACPolicy needs symmetry= or task=")
@@ -262,13 +300,25 @@ class EquiSACPolicy(SACPolicy):
 
     def make_actor(self, features_extractor=None):
         kw = self._update_features_extractor(self.actor_kwargs, features_extractor)
-        return EquiActor(kw["observation_space"], kw["action_space"], kw["features_extractor"], kw["features_dim"],
-                         squash=self._squash, **self._equi).to(self.device)
+        return EquiActor(
+            kw["observation_space"],
+            kw["action_space"],
+            kw["features_extractor"],
+            kw["features_dim"],
+            squash=self._squash,
+            **self._equi,
+        ).to(self.device)
 
     def make_critic(self, features_extractor=None):
         kw = self._update_features_extractor(self.critic_kwargs, features_extractor)
-        return EquiCritic(kw["observation_space"], kw["action_space"], kw["features_extractor"], kw["features_dim"],
-                          n_critics=kw.get("n_critics", 2), **self._equi).to(self.device)
+        return EquiCritic(
+            kw["observation_space"],
+            kw["action_space"],
+            kw["features_extractor"],
+            kw["features_dim"],
+            n_critics=kw.get("n_critics", 2),
+            **self._equi,
+        ).to(self.device)
 
     # escnn modules in eval mode keep their expanded weights as extra buffers; those are a cache
     # of the parameters, never saved, so a checkpoint loads whatever mode either side was in.
@@ -297,7 +347,10 @@ class EquiSACPolicy(SACPolicy):
                 ids = {id(p) for p in plain}
                 equi = [p for p in module.parameters() if id(p) not in ids]
                 module.optimizer = torch.optim.Adam(
-                    [{"params": equi, "weight_decay": self._decay[0]}, {"params": plain, "weight_decay": self._decay[1]}],
+                    [
+                        {"params": equi, "weight_decay": self._decay[0]},
+                        {"params": plain, "weight_decay": self._decay[1]},
+                    ],
                     lr=lr_schedule(1),
                 )
 

@@ -24,8 +24,10 @@ from __future__ import annotations
 import argparse
 import copy
 import csv
+import functools
 import json
 import math
+import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -116,7 +118,7 @@ class EquivariantNoiseNet(tnn.Module):
 
     def __init__(self, obs_blocks, chunk_blocks, time_dim: int, hidden_fields: int, hidden_layers: int, order: int):
         super().__init__()
-        from escnn import gspaces, group
+        from escnn import group, gspaces
         from escnn import nn as enn
 
         gs = gspaces.no_base_space(group.cyclic_group(order))
@@ -176,7 +178,11 @@ class PlainNoiseNet(tnn.Module):
         return self.net(x)
 
     def export_linear(self) -> list[tuple[np.ndarray, np.ndarray]]:
-        return [(m.weight.detach().double().numpy().copy(), m.bias.detach().double().numpy().copy()) for m in self.net if isinstance(m, tnn.Linear)]
+        return [
+            (m.weight.detach().double().numpy().copy(), m.bias.detach().double().numpy().copy())
+            for m in self.net
+            if isinstance(m, tnn.Linear)
+        ]
 
 
 def count_params(m: tnn.Module) -> int:
@@ -186,7 +192,9 @@ def count_params(m: tnn.Module) -> int:
 def build_net(cfg: EDPConfig, sym: Symmetry) -> tnn.Module:
     obs_blocks, chunk_blocks = sym.blocks("observation"), sym.blocks("chunk")
     in_dim = sym.dim("observation") + sym.dim("chunk") + cfg.time_dim
-    equi = EquivariantNoiseNet(obs_blocks, chunk_blocks, cfg.time_dim, cfg.hidden_fields, cfg.hidden_layers, cfg.group_order)
+    equi = EquivariantNoiseNet(
+        obs_blocks, chunk_blocks, cfg.time_dim, cfg.hidden_fields, cfg.hidden_layers, cfg.group_order
+    )
     if cfg.equivariant:
         return equi
     # Match the parameter count: solve for the plain width.
@@ -212,7 +220,9 @@ def chunk_dataset(demos: list[dict[str, Any]], chunk_len: int) -> tuple[np.ndarr
 
 
 # -- training ------------------------------------------------------------------------------
-def train(cfg: EDPConfig, demo_path: str | Path, out: str | Path, progress: bool = True, threads: int = 1) -> dict[str, Any]:
+def train(
+    cfg: EDPConfig, demo_path: str | Path, out: str | Path, progress: bool = True, threads: int = 1
+) -> dict[str, Any]:
     # Small networks: one thread is fastest, and several OpenMP threads on a loaded machine
     # spin-wait each other into a crawl.
     torch.set_num_threads(threads)
@@ -270,7 +280,10 @@ def train(cfg: EDPConfig, demo_path: str | Path, out: str | Path, progress: bool
         if hasattr(steps, "set_postfix") and step % 50 == 0:
             steps.set_postfix(loss=f"{np.mean(losses[-50:]):.4f}")
         if (step + 1) % 1000 == 0 or step + 1 == cfg.steps:
-            torch.save({"config": asdict(cfg), "net": net.state_dict(), "ema": ema.state_dict(), "step": step + 1}, out.with_suffix(".ckpt"))
+            torch.save(
+                {"config": asdict(cfg), "net": net.state_dict(), "ema": ema.state_dict(), "step": step + 1},
+                out.with_suffix(".ckpt"),
+            )
     seconds = time.time() - t0
     with open(log_path, "w", newline="") as f:
         w = csv.writer(f)
@@ -279,10 +292,26 @@ def train(cfg: EDPConfig, demo_path: str | Path, out: str | Path, progress: bool
     _plot_loss(losses, out.with_suffix(".loss.png"))
     layers = ema.export_linear()
     export(
-        out, cfg, sym, layers, obs_off, obs_scale, act_off, act_scale,
-        params=count_params(net), demos=len(data["demos"]), final_loss=float(np.mean(losses[-100:])), train_seconds=round(seconds),
+        out,
+        cfg,
+        sym,
+        layers,
+        obs_off,
+        obs_scale,
+        act_off,
+        act_scale,
+        params=count_params(net),
+        demos=len(data["demos"]),
+        final_loss=float(np.mean(losses[-100:])),
+        train_seconds=round(seconds),
     )
-    return {"path": str(out), "params": count_params(net), "samples": n, "seconds": seconds, "final_loss": float(np.mean(losses[-100:]))}
+    return {
+        "path": str(out),
+        "params": count_params(net),
+        "samples": n,
+        "seconds": seconds,
+        "final_loss": float(np.mean(losses[-100:])),
+    }
 
 
 def _plot_loss(losses: list[float], path: Path) -> None:
@@ -341,14 +370,17 @@ class ExportedPolicy:
     """The exported file run in numpy/torch: for parity tests and speed comparisons."""
 
     def __init__(self, path: str | Path, dtype: torch.dtype = torch.float64):
-        from safetensors.numpy import load_file
         from safetensors import safe_open
+        from safetensors.numpy import load_file
 
         t = load_file(str(path))
         with safe_open(str(path), "np") as f:
             self.meta = f.metadata()
         n = int(self.meta["num_layers"])
-        self.layers = [(torch.tensor(t[f"layer{i}.weight"], dtype=dtype), torch.tensor(t[f"layer{i}.bias"], dtype=dtype)) for i in range(n)]
+        self.layers = [
+            (torch.tensor(t[f"layer{i}.weight"], dtype=dtype), torch.tensor(t[f"layer{i}.bias"], dtype=dtype))
+            for i in range(n)
+        ]
         self.abar = t["alphas_cumprod"]
         self.temb = torch.tensor(t["time_embedding"], dtype=dtype)
         self.obs_off, self.obs_scale = (torch.tensor(t[k], dtype=dtype) for k in ("obs_offset", "obs_scale"))
@@ -377,7 +409,14 @@ class ExportedPolicy:
         return (x * self.act_scale + self.act_off).numpy()
 
 
-def evaluate(policy_path: str | Path, episodes: int = 100, seed: int = 0, noise_seed: int = 0, progress: bool = True, **env_kwargs: Any) -> dict[str, Any]:
+def evaluate(
+    policy_path: str | Path,
+    episodes: int = 100,
+    seed: int = 0,
+    noise_seed: int = 0,
+    progress: bool = True,
+    **env_kwargs: Any,
+) -> dict[str, Any]:
     """The base policy's success rate: latent noise w ~ N(0, I) clipped to the bound (the
     'before steering' figure), over seeded episodes; an episode succeeds if any step does."""
     from equigym import _core
@@ -405,7 +444,9 @@ def evaluate(policy_path: str | Path, episodes: int = 100, seed: int = 0, noise_
     return {"task": policy.task, "episodes": episodes, "successes": int(wins), "success_rate": wins / episodes}
 
 
-def benchmark(policy_path: str | Path, batches: tuple[int, ...] = (1, 256), seconds: float = 2.0) -> list[dict[str, Any]]:
+def benchmark(
+    policy_path: str | Path, batches: tuple[int, ...] = (1, 256), seconds: float = 2.0
+) -> list[dict[str, Any]]:
     """Chunks per second of the Rust runtime and of the same MLP + DDIM in PyTorch (float32
     and float64), side by side, on this machine's threads."""
     from equigym import _core
@@ -416,10 +457,9 @@ def benchmark(policy_path: str | Path, batches: tuple[int, ...] = (1, 256), seco
         rng = np.random.default_rng(0)
         obs = rng.normal(size=(b, rust.obs_dim)) * 0.05
         w = rng.normal(size=(b, rust.action_dim))
-        entries = {"rust (float64)": lambda: rust.sample(obs, w)}
+        entries = {"rust (float64)": functools.partial(rust.sample, obs, w)}
         for name, dt in (("pytorch (float32)", torch.float32), ("pytorch (float64)", torch.float64)):
-            ref = ExportedPolicy(policy_path, dt)
-            entries[name] = (lambda r: lambda: r.sample(obs, w))(ref)
+            entries[name] = functools.partial(ExportedPolicy(policy_path, dt).sample, obs, w)
         row: dict[str, Any] = {"batch": b}
         for name, fn in entries.items():
             fn()
@@ -437,13 +477,14 @@ def report(out: str | Path, episodes: int = 100, seconds: float = 2.0) -> str:
     write a Markdown table to ``out`` and return it."""
     import platform
 
-    from equigym.latent import ASSET_DIR
+    from equigym.assets import asset_dir
 
     lines = [
         "# Shipped equivariant diffusion policies",
         "",
         f"Generated by `python -m baselines.edp report --episodes {episodes}` ({platform.machine()}, "
-        f"torch {torch.__version__}, {torch.get_num_threads()} torch thread(s)).",
+        f"torch {torch.__version__}, {torch.get_num_threads()} torch thread(s), load average "
+        f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs at the start: timings on a busy machine are low).",
         "",
         "Base-policy success ('before steering'): latent noise w ~ N(0, I) clipped to +-1.5, deterministic "
         f"DDIM with 5 steps, {episodes} seeded episodes, an episode succeeds if any step does.",
@@ -453,7 +494,7 @@ def report(out: str | Path, episodes: int = 100, seconds: float = 2.0) -> str:
     ]
     bench_rows = []
     for task in ("lift", "stack", "square"):
-        path = ASSET_DIR / f"{task}.safetensors"
+        path = asset_dir("edp") / f"{task}.safetensors"
         if not path.exists():
             lines.append(f"| {task} | - | - | - | - | - | not shipped yet |")
             continue
@@ -481,7 +522,9 @@ def report(out: str | Path, episodes: int = 100, seconds: float = 2.0) -> str:
             "|---:|" + "---:|" * (len(bench_rows[0]) - 1),
         ]
         for row in bench_rows:
-            lines.append(f"| {row['batch']} | " + " | ".join(f"{v:,.0f}" for k, v in row.items() if k != "batch") + " |")
+            lines.append(
+                f"| {row['batch']} | " + " | ".join(f"{v:,.0f}" for k, v in row.items() if k != "batch") + " |"
+            )
     text = "\n".join(lines) + "\n"
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     Path(out).write_text(text)
@@ -525,8 +568,13 @@ def main(argv: list[str] | None = None) -> None:
             print(json.dumps({k: (round(v, 1) if isinstance(v, float) else v) for k, v in row.items()}))
     elif a.cmd == "train":
         cfg = EDPConfig(
-            equivariant=not a.plain, steps=a.steps, hidden_fields=a.hidden_fields, hidden_layers=a.hidden_layers,
-            batch_size=a.batch_size, lr=a.lr, seed=a.seed,
+            equivariant=not a.plain,
+            steps=a.steps,
+            hidden_fields=a.hidden_fields,
+            hidden_layers=a.hidden_layers,
+            batch_size=a.batch_size,
+            lr=a.lr,
+            seed=a.seed,
         )
         print(json.dumps(train(cfg, a.demos, a.out)))
 

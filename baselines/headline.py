@@ -50,8 +50,18 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--out", default="runs/headline")
     a = p.parse_args(argv)
     sweep_args = argparse.Namespace(
-        methods=a.methods, tasks=[a.task], seeds=a.seeds, steps=a.steps, out=a.out, preset="cpu", ent_init=a.ent_init,
-        no_joint_limits=False, eval_every=a.eval_every, eval_episodes=a.eval_episodes, policy=None, workers=a.workers,
+        methods=a.methods,
+        tasks=[a.task],
+        seeds=a.seeds,
+        steps=a.steps,
+        out=a.out,
+        preset="cpu",
+        ent_init=a.ent_init,
+        no_joint_limits=False,
+        eval_every=a.eval_every,
+        eval_episodes=a.eval_episodes,
+        policy=None,
+        workers=a.workers,
         base_episodes=a.eval_episodes,
     )
     steer.sweep(sweep_args)

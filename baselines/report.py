@@ -27,7 +27,9 @@ def load_runs(root: str | Path) -> dict[tuple[str, str], list[dict]]:
 
 def load_base(root: str | Path) -> dict[str, float]:
     """Base-policy success per task folder (``<root>/<task>/base.json``, from ``steer base``/``sweep``)."""
-    return {p.parent.name: float(json.loads(p.read_text())["success_rate"]) for p in sorted(Path(root).glob("*/base.json"))}
+    return {
+        p.parent.name: float(json.loads(p.read_text())["success_rate"]) for p in sorted(Path(root).glob("*/base.json"))
+    }
 
 
 def write_report(root: str | Path, out: str | Path, base: dict[str, float] | None = None) -> str:
@@ -37,9 +39,14 @@ def write_report(root: str | Path, out: str | Path, base: dict[str, float] | Non
     out.mkdir(parents=True, exist_ok=True)
     tasks = sorted({t for t, _ in runs})
     methods = [m for m in LABELS if any(m == mm for _, mm in runs)]
-    lines = ["# Steering results", "", f"From `{root}` by `python -m baselines.steer report`. Success rates of the "
-             "stochastic steering policy, each evaluation >= 50 episodes unless the runs said otherwise; mean +- standard "
-             "error over seeds. The base policy column is the EDP alone (latent noise N(0, I), 100 episodes).", ""]
+    lines = [
+        "# Steering results",
+        "",
+        f"From `{root}` by `python -m baselines.steer report`. Success rates of the "
+        "stochastic steering policy, each evaluation >= 50 episodes unless the runs said otherwise; mean +- standard "
+        "error over seeds. The base policy column is the EDP alone (latent noise N(0, I), 100 episodes).",
+        "",
+    ]
 
     def cell(values: list[float]) -> str:
         se = np.std(values, ddof=1) / np.sqrt(len(values)) if len(values) > 1 else float("nan")
@@ -47,17 +54,25 @@ def write_report(root: str | Path, out: str | Path, base: dict[str, float] | Non
 
     # Peak over evaluations is the paper's Table 1 metric; with few noisy evaluations it is biased
     # upwards, so the mean of each run's last two evaluations is reported beside it.
-    for title, stat in (("Peak success (the paper's Table 1 metric)", lambda rates: max(rates)),
-                        ("Final success (mean of the last two evaluations)", lambda rates: float(np.mean(rates[-2:])))):
-        lines += [f"**{title}**", "", "| task | base policy | " + " | ".join(LABELS[m] for m in methods) + " |",
-                  "|---|---:|" + "---:|" * len(methods)]
+    for title, stat in (
+        ("Peak success (the paper's Table 1 metric)", lambda rates: max(rates)),
+        ("Final success (mean of the last two evaluations)", lambda rates: float(np.mean(rates[-2:]))),
+    ):
+        lines += [
+            f"**{title}**",
+            "",
+            "| task | base policy | " + " | ".join(LABELS[m] for m in methods) + " |",
+            "|---|---:|" + "---:|" * len(methods),
+        ]
         for t in tasks:
             cells = []
             for m in methods:
                 rs = runs.get((t, m), [])
                 if rs:
                     steps = int(min(run["rows"][-1]["env_steps"] for run in rs))
-                    cells.append(f"{cell([stat([r['success_rate'] for r in run['rows']]) for run in rs])} ({len(rs)} seed{'s' if len(rs) != 1 else ''}, {steps:,} steps)")
+                    cells.append(
+                        f"{cell([stat([r['success_rate'] for r in run['rows']]) for run in rs])} ({len(rs)} seed{'s' if len(rs) != 1 else ''}, {steps:,} steps)"
+                    )
                 else:
                     cells.append("-")
             b = base.get(t)
@@ -65,8 +80,12 @@ def write_report(root: str | Path, out: str | Path, base: dict[str, float] | Non
         lines.append("")
     # Value divergence: rewards are in [-chunk, 0], so a sampled batch's mean Q above 0 comes
     # from the entropy bonus or from overestimation; report each method's largest and last value.
-    lines += ["Mean Q of sampled replay batches (soft Q, entropy bonus included): largest / last, mean over seeds.", "",
-              "| task | " + " | ".join(LABELS[m] for m in methods) + " |", "|---|" + "---:|" * len(methods)]
+    lines += [
+        "Mean Q of sampled replay batches (soft Q, entropy bonus included): largest / last, mean over seeds.",
+        "",
+        "| task | " + " | ".join(LABELS[m] for m in methods) + " |",
+        "|---|" + "---:|" * len(methods),
+    ]
     for t in tasks:
         cells = []
         for m in methods:

@@ -46,7 +46,16 @@ LATENT_IDS = {"lift": "EquiLift-Latent-v0", "stack": "EquiStack-Latent-v0", "squ
 RAW_IDS = {"lift": "EquiLift-v0", "stack": "EquiStack-v0", "square": "EquiSquare-v0"}
 PRESETS = {
     "cpu": {"width": 64, "layers": 3, "utd": 4, "batch": 256, "n_envs": 4, "warmup": 1000, "ent_init": 0.2},
-    "paper": {"width": 2048, "layers": 3, "utd": 30, "utd_square": 20, "batch": 256, "n_envs": 4, "warmup": 6000, "ent_init": 1.0},
+    "paper": {
+        "width": 2048,
+        "layers": 3,
+        "utd": 30,
+        "utd_square": 20,
+        "batch": 256,
+        "n_envs": 4,
+        "warmup": 6000,
+        "ent_init": 1.0,
+    },
 }
 
 
@@ -68,7 +77,9 @@ def equi_fields_matching(task: str, target: int, layers: int, residual: bool) ->
     lat_space = gymnasium.spaces.Box(-1.5, 1.5, (40,), np.float32)
     best, best_gap = 8, None
     for fields in (8, 16, 24, 32, 48, 64, 96, 128, 192, 256):
-        pol = EquiSACPolicy(obs_space, lat_space, lambda _: 3e-4, task=task, hidden_fields=fields, layers=layers, residual=residual)
+        pol = EquiSACPolicy(
+            obs_space, lat_space, lambda _: 3e-4, task=task, hidden_fields=fields, layers=layers, residual=residual
+        )
         n = count_parameters(pol.actor) + count_parameters(pol.critic)
         gap = abs(n - target)
         if best_gap is None or gap < best_gap:
@@ -78,34 +89,62 @@ def equi_fields_matching(task: str, target: int, layers: int, residual: bool) ->
     return best
 
 
-def build(method: str, task: str, preset: dict[str, Any], seed: int, joint_limits: bool, policy_file: str | None) -> tuple[SAC, Any]:
+def build(
+    method: str, task: str, preset: dict[str, Any], seed: int, joint_limits: bool, policy_file: str | None
+) -> tuple[SAC, Any]:
     env_kwargs: dict[str, Any] = {"joint_limits": joint_limits}
     if method == "sac":
-        make = lambda: gymnasium.wrappers.TimeLimit(gymnasium.make(RAW_IDS[task], action_mode="normalized", reward="sparse", joint_limits=joint_limits).unwrapped, 400)  # noqa: E731
+        env_id = RAW_IDS[task]
+        env_kwargs.update(action_mode="normalized", reward="sparse")
     else:
+        env_id = LATENT_IDS[task]
         if policy_file:
             env_kwargs["policy"] = policy_file
-        make = lambda: gymnasium.make(LATENT_IDS[task], **env_kwargs)  # noqa: E731
+
+    def make() -> gymnasium.Env:
+        # The env truncates at its own horizon (400 control steps).
+        return gymnasium.make(env_id, **env_kwargs)
+
     venv = DummyVecEnv([make for _ in range(preset["n_envs"])])
     venv.seed(seed)
     arch = [preset["width"]] * preset["layers"]
     common = dict(
-        learning_rate=3e-4, buffer_size=1_000_000, batch_size=preset["batch"], tau=0.005,
-        gamma=0.999 if task == "square" else 0.99, train_freq=1, gradient_steps=preset.get(f"utd_{task}", preset["utd"]) * preset["n_envs"],
-        ent_coef=f"auto_{preset['ent_init']}", target_entropy=0.0, seed=seed, verbose=0, device="cpu",
+        learning_rate=3e-4,
+        buffer_size=1_000_000,
+        batch_size=preset["batch"],
+        tau=0.005,
+        gamma=0.999 if task == "square" else 0.99,
+        train_freq=1,
+        gradient_steps=preset.get(f"utd_{task}", preset["utd"]) * preset["n_envs"],
+        ent_coef=f"auto_{preset['ent_init']}",
+        target_entropy=0.0,
+        seed=seed,
+        verbose=0,
+        device="cpu",
     )
     if method in ("dsrl", "sac"):
         cls = LatentSAC if method == "dsrl" else SAC
-        model = cls(LayerNormSACPolicy, venv, learning_starts=preset["warmup"], policy_kwargs=dict(net_arch=arch, activation_fn=torch.nn.Tanh), **common)
+        model = cls(
+            LayerNormSACPolicy,
+            venv,
+            learning_starts=preset["warmup"],
+            policy_kwargs=dict(net_arch=arch, activation_fn=torch.nn.Tanh),
+            **common,
+        )
     else:
         # Match the DSRL nets' parameter count (a policy alone, no model or replay buffer).
-        dsrl = LayerNormSACPolicy(venv.observation_space, venv.action_space, lambda _: 3e-4, net_arch=arch, activation_fn=torch.nn.Tanh)
+        dsrl = LayerNormSACPolicy(
+            venv.observation_space, venv.action_space, lambda _: 3e-4, net_arch=arch, activation_fn=torch.nn.Tanh
+        )
         target = count_parameters(dsrl.actor) + count_parameters(dsrl.critic)
         residual = method == "approx"
         fields = equi_fields_matching(task, target, preset["layers"], residual)
         model = LatentSAC(
-            EquiSACPolicy, venv, learning_starts=preset["warmup"],
-            policy_kwargs=dict(task=task, hidden_fields=fields, layers=preset["layers"], residual=residual), **common,
+            EquiSACPolicy,
+            venv,
+            learning_starts=preset["warmup"],
+            policy_kwargs=dict(task=task, hidden_fields=fields, layers=preset["layers"], residual=residual),
+            **common,
         )
     return model, make
 
@@ -134,7 +173,9 @@ def evaluate(model: SAC | None, make, episodes: int, seed: int = 10_000) -> floa
     return wins / episodes
 
 
-def base_success(task: str, out: str | Path, episodes: int = 100, joint_limits: bool = True, policy_file: str | None = None) -> float:
+def base_success(
+    task: str, out: str | Path, episodes: int = 100, joint_limits: bool = True, policy_file: str | None = None
+) -> float:
     """The base policy's success before steering (cached in <out>/<task>[-nolimits]/base.json)."""
     path = Path(out) / f"{task}{'' if joint_limits else '-nolimits'}" / "base.json"
     if path.exists():
@@ -146,7 +187,17 @@ def base_success(task: str, out: str | Path, episodes: int = 100, joint_limits: 
         kwargs["policy"] = policy_file
     rate = evaluate(None, lambda: gymnasium.make(LATENT_IDS[task], **kwargs), episodes)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"task": task, "joint_limits": joint_limits, "episodes": episodes, "policy": policy_file, "success_rate": rate}))
+    path.write_text(
+        json.dumps(
+            {
+                "task": task,
+                "joint_limits": joint_limits,
+                "episodes": episodes,
+                "policy": policy_file,
+                "success_rate": rate,
+            }
+        )
+    )
     return rate
 
 
@@ -160,7 +211,9 @@ def mean_q(model: SAC, batch: int = 256) -> float:
 
 
 class EvalLogger(BaseCallback):
-    def __init__(self, make, log_path: Path, ckpt: Path, every: int, episodes: int, chunk: int, total: int, progress: bool):
+    def __init__(
+        self, make, log_path: Path, ckpt: Path, every: int, episodes: int, chunk: int, total: int, progress: bool
+    ):
         super().__init__()
         self.make, self.log_path, self.ckpt, self.every, self.episodes = make, log_path, ckpt, every, episodes
         self.chunk, self.total, self.t0 = chunk, total, time.time()
@@ -197,8 +250,19 @@ class EvalLogger(BaseCallback):
         return steps < self.total
 
 
-def run(method: str, task: str, seed: int, steps: int, out: str | Path, preset: str | dict[str, Any] = "cpu", joint_limits: bool = True,
-        eval_every: int = 2000, eval_episodes: int = 50, policy_file: str | None = None, progress: bool = True) -> Path:
+def run(
+    method: str,
+    task: str,
+    seed: int,
+    steps: int,
+    out: str | Path,
+    preset: str | dict[str, Any] = "cpu",
+    joint_limits: bool = True,
+    eval_every: int = 2000,
+    eval_episodes: int = 50,
+    policy_file: str | None = None,
+    progress: bool = True,
+) -> Path:
     if isinstance(preset, str):
         preset = {"name": preset, **PRESETS[preset]}
     name = f"{task}{'' if joint_limits else '-nolimits'}/{method}/seed{seed}"
@@ -208,8 +272,16 @@ def run(method: str, task: str, seed: int, steps: int, out: str | Path, preset: 
     torch.set_num_threads(1)
     model, make = build(method, task, preset, seed, joint_limits, policy_file)
     chunk = 1 if method == "sac" else 4
-    meta = {"method": method, "task": task, "seed": seed, "preset": preset, "steps": steps, "joint_limits": joint_limits,
-            "params_actor": count_parameters(model.actor), "params_critic": count_parameters(model.critic)}
+    meta = {
+        "method": method,
+        "task": task,
+        "seed": seed,
+        "preset": preset,
+        "steps": steps,
+        "joint_limits": joint_limits,
+        "params_actor": count_parameters(model.actor),
+        "params_critic": count_parameters(model.critic),
+    }
     if (ckpt / "model.zip").exists():
         model = model.__class__.load(ckpt / "model.zip", env=model.get_env(), device="cpu")
         model.load_replay_buffer(ckpt / "replay.pkl")
@@ -225,8 +297,26 @@ def run(method: str, task: str, seed: int, steps: int, out: str | Path, preset: 
 
 
 def _run_args(a: argparse.Namespace, method: str, task: str, seed: int) -> list[str]:
-    args = ["run", "--method", method, "--task", task, "--seed", str(seed), "--steps", str(a.steps), "--out", a.out,
-            "--preset", a.preset, "--eval-every", str(a.eval_every), "--eval-episodes", str(a.eval_episodes), "--no-progress"]
+    args = [
+        "run",
+        "--method",
+        method,
+        "--task",
+        task,
+        "--seed",
+        str(seed),
+        "--steps",
+        str(a.steps),
+        "--out",
+        a.out,
+        "--preset",
+        a.preset,
+        "--eval-every",
+        str(a.eval_every),
+        "--eval-episodes",
+        str(a.eval_episodes),
+        "--no-progress",
+    ]
     if a.no_joint_limits:
         args.append("--no-joint-limits")
     if a.policy:
@@ -245,7 +335,9 @@ def sweep(a: argparse.Namespace) -> None:
 
     from tqdm import tqdm
 
-    jobs = [(m, t, s) for t in a.tasks for s in a.seeds for m in a.methods]  # seed-major: early results cover every method
+    jobs = [
+        (m, t, s) for t in a.tasks for s in a.seeds for m in a.methods
+    ]  # seed-major: early results cover every method
     for t in a.tasks:
         rate = base_success(t, a.out, a.base_episodes, not a.no_joint_limits, a.policy)
         print(f"{t}: base policy success {rate:.3f} over {a.base_episodes} episodes")
@@ -256,7 +348,9 @@ def sweep(a: argparse.Namespace) -> None:
         log = Path(a.out) / f"{t}{'' if not a.no_joint_limits else '-nolimits'}" / m / f"seed{s}" / "stdout.txt"
         log.parent.mkdir(parents=True, exist_ok=True)
         with open(log, "a") as f:
-            rc = subprocess.call([sys.executable, "-m", "baselines.steer", *_run_args(a, m, t, s)], stdout=f, stderr=subprocess.STDOUT)
+            rc = subprocess.call(
+                [sys.executable, "-m", "baselines.steer", *_run_args(a, m, t, s)], stdout=f, stderr=subprocess.STDOUT
+            )
         bar.update(1)
         bar.write(f"{t}/{m}/seed{s}: {'done' if rc == 0 else f'failed (exit {rc}, see {log})'}")
         return rc
@@ -287,7 +381,9 @@ def main(argv: list[str] | None = None) -> None:
         s.add_argument("--steps", type=int, default=20_000, help="primitive environment steps per run")
         s.add_argument("--out", default="runs/steer")
         s.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
-        s.add_argument("--ent-init", type=float, default=None, help="initial entropy coefficient (default: the preset's)")
+        s.add_argument(
+            "--ent-init", type=float, default=None, help="initial entropy coefficient (default: the preset's)"
+        )
         s.add_argument("--no-joint-limits", action="store_true")
         s.add_argument("--eval-every", type=int, default=2000)
         s.add_argument("--eval-episodes", type=int, default=50)
@@ -307,15 +403,28 @@ def main(argv: list[str] | None = None) -> None:
 
         print(write_report(a.runs, a.out))
     elif a.cmd == "base":
-        print(f"{a.task}: base policy success {base_success(a.task, a.out, a.episodes, not a.no_joint_limits, a.policy):.3f}")
+        print(
+            f"{a.task}: base policy success {base_success(a.task, a.out, a.episodes, not a.no_joint_limits, a.policy):.3f}"
+        )
     elif a.cmd == "sweep":
         sweep(a)
     else:
         preset = {"name": a.preset, **PRESETS[a.preset]}
         if a.ent_init is not None:
             preset["ent_init"] = a.ent_init
-        run(a.method, a.task, a.seed, a.steps, a.out, preset, not a.no_joint_limits, a.eval_every, a.eval_episodes, a.policy,
-            progress=not a.no_progress)
+        run(
+            a.method,
+            a.task,
+            a.seed,
+            a.steps,
+            a.out,
+            preset,
+            not a.no_joint_limits,
+            a.eval_every,
+            a.eval_episodes,
+            a.policy,
+            progress=not a.no_progress,
+        )
 
 
 if __name__ == "__main__":

@@ -46,8 +46,8 @@ def main():
     args = ap.parse_args()
     affinity = pin(args.cpu)
 
-    import numpy as np
     import mujoco
+    import numpy as np
     import robosuite
 
     out = {
@@ -99,8 +99,8 @@ def main():
 def physics_only(env, rng, low, high, nrec, reps):
     """Physics ceiling: replay the ctrl that robosuite's controller wrote at every substep
     through bare mujoco.mj_step on a fresh MjData, so no Python controller/obs cost is left."""
-    import numpy as np
     import mujoco
+    import numpy as np
 
     env.reset()
     m, d = env.sim.model._model, env.sim.data._data

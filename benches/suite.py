@@ -189,9 +189,8 @@ def bench_latent(b, t, args):
 
 
 def bench_edp(args):
-    from baselines.edp import benchmark
-
     import equigym.latent
+    from baselines.edp import benchmark
 
     return {"rows": benchmark(equigym.latent.shipped_policy("lift"), batches=(1, 16, 256), seconds=1.0 if args.quick else 2.0)}
 

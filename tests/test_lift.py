@@ -8,8 +8,8 @@ from gymnasium.utils.env_checker import check_env
 import equigym
 
 
-def test_registered_with_time_limit_and_float32_boxes(lift):
-    assert lift.spec.max_episode_steps == 400
+def test_registered_horizon_and_float32_boxes(lift):
+    assert lift.spec.max_episode_steps is None and lift.unwrapped.horizon == 400
     assert lift.observation_space.shape == (22,)
     assert lift.observation_space.dtype == np.float32
     assert lift.action_space.shape == (10,)
@@ -21,20 +21,29 @@ def test_registered_with_time_limit_and_float32_boxes(lift):
 def test_observation_fields_follow_the_papers_lift_table(lift):
     fields = lift.unwrapped.observation_fields
     assert list(fields) == [
-        "cube_pos", "cube_rot6d", "gripper_to_cube_xy", "gripper_pos", "gripper_rot6d", "gripper_joint_pos",
+        "cube_pos",
+        "cube_rot6d",
+        "gripper_to_cube_xy",
+        "gripper_pos",
+        "gripper_rot6d",
+        "gripper_joint_pos",
     ]
     assert [s.stop - s.start for s in fields.values()] == [3, 6, 2, 3, 6, 2]
     reps = [f["rep"] for f in lift.unwrapped.observation_layout]
     assert reps == ["rho1 + rho0", "rho1^3", "rho1", "rho1 + rho0", "rho1^3", "rho0^2"]
     obs, _ = lift.reset(seed=3)
     f = fields
-    np.testing.assert_allclose(obs[f["gripper_to_cube_xy"]], obs[f["cube_pos"]][:2] - obs[f["gripper_pos"]][:2], atol=1e-6)
+    np.testing.assert_allclose(
+        obs[f["gripper_to_cube_xy"]], obs[f["cube_pos"]][:2] - obs[f["gripper_pos"]][:2], atol=1e-6
+    )
     assert 0.8 < obs[f["cube_pos"]][2] < 0.83  # resting on the table
 
 
 @pytest.mark.parametrize("action_mode", ["absolute", "normalized"])
 def test_gymnasium_env_checker_passes(action_mode):
-    env = gymnasium.make("EquiLift-v0", action_mode=action_mode, render_mode="rgb_array", render_width=64, render_height=48)
+    env = gymnasium.make(
+        "EquiLift-v0", action_mode=action_mode, render_mode="rgb_array", render_width=64, render_height=48
+    )
     check_env(env.unwrapped, skip_render_check=False)
 
 
@@ -116,7 +125,7 @@ def test_dense_reward_and_info_terms():
 def test_episode_truncates_at_400_steps(lift):
     lift.reset(seed=0)
     hold = lift.unwrapped.core.current_target().astype(np.float32)
-    for t in range(400):
+    for t in range(400):  # noqa: B007 (checked after the loop)
         _, _, terminated, truncated, _ = lift.step(hold)
         assert not terminated
     assert truncated and t == 399

@@ -183,8 +183,16 @@ def test_sb3_adapter_fills_terminal_observation_and_learns():
     ref_reset, *_ = ref.step(acts[0])
     np.testing.assert_array_equal(obs, ref_reset)
     assert venv.get_attr("horizon") == [3, 3]
-    model = SAC("MlpPolicy", venv, learning_starts=8, batch_size=8, buffer_size=200,
-                policy_kwargs={"net_arch": [16, 16]}, seed=0, device="cpu")
+    model = SAC(
+        "MlpPolicy",
+        venv,
+        learning_starts=8,
+        batch_size=8,
+        buffer_size=200,
+        policy_kwargs={"net_arch": [16, 16]},
+        seed=0,
+        device="cpu",
+    )
     model.learn(24)
     venv.close()
 

@@ -9,23 +9,42 @@ use equigym_wrappers::DiffusionPolicy as RustPolicy;
 use numpy::ndarray::Array3;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
-use pyo3::types::{PyBytes, PyDict};
+use pyo3::types::{PyBytes, PyDict, PyTuple};
+use equigym_envs::Env as RustEnv;
 
-use crate::symmetry::sym_err;
+use crate::errors::{invalid_input, to_py};
+use crate::options::{env_config, options_kwargs};
 use crate::vector::{obs_array, reset_batch, step_batch, StepOut};
-use crate::{info_dict, to_py, Env, EquigymError};
+use crate::{info_dict, Spec};
 
 /// An exported equivariant diffusion policy, run in Rust (batched deterministic DDIM).
-#[pyclass(module = "equigym._core", name = "DiffusionPolicy")]
+/// Keeps the bytes of its file, so it pickles without the file.
+#[pyclass(module = "equigym._core", name = "DiffusionPolicy", frozen)]
 pub struct DiffusionPolicy {
     inner: Arc<RustPolicy>,
+    bytes: Arc<Vec<u8>>,
+    origin: String,
 }
 
 #[pymethods]
 impl DiffusionPolicy {
+    /// Load from a file path, or from the bytes of a policy file (`origin` names it in errors).
     #[new]
-    fn new(path: PathBuf) -> PyResult<Self> {
-        Ok(Self { inner: Arc::new(RustPolicy::load(&path).map_err(sym_err)?) })
+    #[pyo3(signature = (source, origin=None))]
+    fn new(source: &Bound<'_, PyAny>, origin: Option<String>) -> PyResult<Self> {
+        let (bytes, origin) = match source.cast::<PyBytes>() {
+            Ok(b) => (b.as_bytes().to_vec(), origin.unwrap_or_else(|| "<bytes>".into())),
+            Err(_) => {
+                let path: PathBuf = source.extract()?;
+                (RustPolicy::read_file(&path).map_err(to_py)?, origin.unwrap_or_else(|| path.display().to_string()))
+            }
+        };
+        let inner = RustPolicy::from_bytes(&bytes, &origin).map_err(to_py)?;
+        Ok(Self { inner: Arc::new(inner), bytes: Arc::new(bytes), origin })
+    }
+    /// Pickling: the file's bytes and its name.
+    fn __getnewargs__<'py>(&self, py: Python<'py>) -> (Bound<'py, PyBytes>, String) {
+        (PyBytes::new(py, &self.bytes), self.origin.clone())
     }
     #[getter]
     fn task(&self) -> &str {
@@ -67,7 +86,7 @@ impl DiffusionPolicy {
         let (od, ad) = (self.inner.obs_dim(), self.inner.action_dim());
         let (os, ls) = (obs.shape().to_vec(), latent.shape().to_vec());
         if os.len() != 2 || ls.len() != 2 || os[1] != od || ls[1] != ad || os[0] != ls[0] {
-            return Err(EquigymError::new_err(format!(
+            return Err(invalid_input(format!(
                 "expected obs (B, {od}) and latent (B, {ad}) with the same B, got {os:?} and {ls:?}"
             )));
         }
@@ -76,53 +95,78 @@ impl DiffusionPolicy {
         let steps = steps.unwrap_or(self.inner.default_ddim_steps);
         let mut out = vec![0.0; w.len()];
         let policy = self.inner.clone();
-        py.detach(|| policy.sample(&o, &w, steps, &mut out)).map_err(sym_err)?;
+        py.detach(|| policy.sample(&o, &w, steps, &mut out)).map_err(to_py)?;
         let chunk = self.inner.chunk_len;
-        let arr = Array3::from_shape_vec((ls[0], chunk, ad / chunk), out).map_err(|e| EquigymError::new_err(e.to_string()))?;
+        let arr = Array3::from_shape_vec((ls[0], chunk, ad / chunk), out).map_err(|e| invalid_input(e.to_string()))?;
         Ok(arr.into_pyarray(py))
     }
 }
 
 /// A loaded `DiffusionPolicy` (shared) or a path to load one from.
-fn policy_arc(policy: &Bound<'_, PyAny>) -> PyResult<Arc<RustPolicy>> {
-    Ok(match policy.cast::<DiffusionPolicy>() {
-        Ok(p) => p.borrow().inner.clone(),
-        Err(_) => Arc::new(RustPolicy::load(policy.extract::<PathBuf>()?).map_err(sym_err)?),
-    })
+fn policy_object(py: Python<'_>, policy: &Bound<'_, PyAny>) -> PyResult<Py<DiffusionPolicy>> {
+    match policy.cast::<DiffusionPolicy>() {
+        Ok(p) => Ok(p.clone().unbind()),
+        Err(_) => Py::new(py, DiffusionPolicy::new(policy, None)?),
+    }
+}
+
+/// `ddim_steps` or the policy's default.
+fn ddim_steps(policy: &RustPolicy, steps: Option<usize>) -> usize {
+    steps.unwrap_or(policy.default_ddim_steps)
 }
 
 /// A task whose action is the diffusion policy's latent noise (see `equigym.latent`).
 #[pyclass(module = "equigym._core", name = "LatentEnv")]
 pub struct LatentEnv {
     inner: RustLatentEnv,
+    policy: Py<DiffusionPolicy>,
 }
 
 #[pymethods]
 impl LatentEnv {
+    /// `task` driven through `policy` (a `DiffusionPolicy` or a path), with the options of
+    /// `Env` as keyword arguments.
     #[new]
-    #[pyo3(signature = (task, policy, *, bound=DEFAULT_LATENT_BOUND, ddim_steps=None, urdf=None, joint_limits=true, init_joint_noise=0.02, horizon=None, physics=None, ranges=None, variant=None))]
-    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (task, policy, *, bound=DEFAULT_LATENT_BOUND, ddim_steps=None, **options))]
     fn new(
+        py: Python<'_>,
         task: &str,
         policy: &Bound<'_, PyAny>,
         bound: f64,
         ddim_steps: Option<usize>,
-        urdf: Option<PathBuf>,
-        joint_limits: bool,
-        init_joint_noise: f64,
-        horizon: Option<usize>,
-        physics: Option<&Bound<'_, PyDict>>,
-        ranges: Option<&Bound<'_, PyDict>>,
-        variant: Option<String>,
+        options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
-        let policy = policy_arc(policy)?;
-        let env = Env::new(task, "sparse", urdf, joint_limits, init_joint_noise, horizon, physics, ranges, variant)?.inner;
-        let steps = ddim_steps.unwrap_or(policy.default_ddim_steps);
-        Ok(Self { inner: RustLatentEnv::new(env, policy, bound, steps).map_err(sym_err)? })
+        let policy = policy_object(py, policy)?;
+        let rust_policy = policy.get().inner.clone();
+        let env = RustEnv::new(env_config(task, options)?).map_err(to_py)?;
+        let steps = self::ddim_steps(&rust_policy, ddim_steps);
+        Ok(Self { inner: RustLatentEnv::new(env, rust_policy, bound, steps).map_err(to_py)?, policy })
+    }
+
+    /// Pickling: the arguments that rebuild this environment (the policy pickles as its bytes) ...
+    fn __getnewargs_ex__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyTuple>, Bound<'py, PyDict>)> {
+        let args = PyTuple::new(py, [self.inner.env().task().id().into_pyobject(py)?.into_any(), self.policy.bind(py).clone().into_any()])?;
+        let kwargs = options_kwargs(py, self.inner.env().config())?;
+        kwargs.set_item("bound", self.inner.bound())?;
+        kwargs.set_item("ddim_steps", self.inner.ddim_steps())?;
+        Ok((args, kwargs))
+    }
+    /// ... and the simulator's full state, so an unpickled copy continues bit for bit.
+    fn __getstate__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyBytes>> {
+        self.get_state(py)
+    }
+    fn __setstate__(&mut self, state: &[u8]) -> PyResult<()> {
+        self.set_state(state)
+    }
+
+    /// The policy this environment denoises with.
+    #[getter]
+    fn policy(&self, py: Python<'_>) -> Py<DiffusionPolicy> {
+        self.policy.clone_ref(py)
     }
 
     fn reset<'py>(&mut self, py: Python<'py>, seed: u64) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        Ok(self.inner.reset(seed).map_err(sym_err)?.into_pyarray(py))
+        Ok(self.inner.reset(seed).map_err(to_py)?.into_pyarray(py))
     }
 
     /// One latent step: (obs, reward, terminated, truncated, info); info has `success`
@@ -133,14 +177,14 @@ impl LatentEnv {
         py: Python<'py>,
         latent: PyReadonlyArray1<'py, f64>,
     ) -> PyResult<(Bound<'py, PyArray1<f64>>, f64, bool, bool, Bound<'py, PyDict>)> {
-        let w = latent.as_slice().map_err(|e| EquigymError::new_err(format!("latent: {e}")))?.to_vec();
+        let w = latent.as_slice().map_err(|e| invalid_input(format!("latent: {e}")))?.to_vec();
         let inner = &mut self.inner;
         let (r, obs) = py
             .detach(|| {
                 let r = inner.step(&w)?;
                 Ok::<_, equigym_wrappers::Error>((r, inner.env_mut().observe().to_vec()))
             })
-            .map_err(sym_err)?;
+            .map_err(to_py)?;
         let info = info_dict(py, &r.evaluation)?;
         info.set_item("success", r.success)?;
         info.set_item("is_success", r.success)?;
@@ -150,8 +194,8 @@ impl LatentEnv {
 
     /// The action chunk of `latent` at the current observation, without stepping.
     fn decode<'py>(&mut self, py: Python<'py>, latent: PyReadonlyArray1<'py, f64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        let w = latent.as_slice().map_err(|e| EquigymError::new_err(format!("latent: {e}")))?.to_vec();
-        Ok(self.inner.decode(&w).map_err(sym_err)?.into_pyarray(py))
+        let w = latent.as_slice().map_err(|e| invalid_input(format!("latent: {e}")))?.to_vec();
+        Ok(self.inner.decode(&w).map_err(to_py)?.into_pyarray(py))
     }
 
     fn last_chunk<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
@@ -165,6 +209,11 @@ impl LatentEnv {
     }
     fn set_state(&mut self, state: &[u8]) -> PyResult<()> {
         self.inner.env_mut().set_state(state).map_err(to_py)
+    }
+    /// The read-only description of the task environment.
+    #[getter]
+    fn spec(&self) -> Spec {
+        Spec(self.inner.env().spec())
     }
     #[getter]
     fn task(&self) -> &'static str {
@@ -201,16 +250,20 @@ impl LatentEnv {
 #[pyclass(module = "equigym._core", name = "LatentVecEnv")]
 pub struct LatentVecEnv {
     inner: LatentBatchEnv,
-    horizon: usize,
+    /// The task environments' read-only description.
+    spec: equigym_envs::EnvSpec,
     stepping: f64,
 }
 
 #[pymethods]
 impl LatentVecEnv {
+    /// `num_envs` latent environments of `task` sharing `policy`, with the options of `Env` as
+    /// keyword arguments.
     #[new]
-    #[pyo3(signature = (task, policy, num_envs, *, threads=0, autoreset_mode="next_step", bound=DEFAULT_LATENT_BOUND, ddim_steps=None, urdf=None, joint_limits=true, init_joint_noise=0.02, horizon=None, physics=None, ranges=None, variant=None))]
+    #[pyo3(signature = (task, policy, num_envs, *, threads=0, autoreset_mode="next_step", bound=DEFAULT_LATENT_BOUND, ddim_steps=None, **options))]
     #[allow(clippy::too_many_arguments)]
     fn new(
+        py: Python<'_>,
         task: &str,
         policy: &Bound<'_, PyAny>,
         num_envs: usize,
@@ -218,28 +271,24 @@ impl LatentVecEnv {
         autoreset_mode: &str,
         bound: f64,
         ddim_steps: Option<usize>,
-        urdf: Option<PathBuf>,
-        joint_limits: bool,
-        init_joint_noise: f64,
-        horizon: Option<usize>,
-        physics: Option<&Bound<'_, PyDict>>,
-        ranges: Option<&Bound<'_, PyDict>>,
-        variant: Option<String>,
+        options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
         if num_envs == 0 {
-            return Err(EquigymError::new_err("num_envs must be at least 1"));
+            return Err(invalid_input("num_envs must be at least 1"));
         }
         let mode = autoreset_mode.parse::<AutoresetMode>().map_err(to_py)?;
-        let policy = policy_arc(policy)?;
-        let steps = ddim_steps.unwrap_or(policy.default_ddim_steps);
+        let policy = policy_object(py, policy)?.get().inner.clone();
+        let steps = self::ddim_steps(&policy, ddim_steps);
+        let config = env_config(task, options)?;
         let envs = (0..num_envs)
             .map(|_| {
-                let env = Env::new(task, "sparse", urdf.clone(), joint_limits, init_joint_noise, horizon, physics, ranges, variant.clone())?.inner;
-                RustLatentEnv::new(env, policy.clone(), bound, steps).map_err(sym_err)
+                let env = RustEnv::new(config.clone())?;
+                RustLatentEnv::new(env, policy.clone(), bound, steps)
             })
-            .collect::<PyResult<Vec<_>>>()?;
-        let horizon = envs[0].env().horizon();
-        Ok(Self { inner: latent_batch(envs, threads, mode).map_err(sym_err)?, horizon, stepping: 0.0 })
+            .collect::<Result<Vec<_>, equigym_wrappers::Error>>()
+            .map_err(to_py)?;
+        let spec = envs[0].env().spec();
+        Ok(Self { inner: latent_batch(envs, threads, mode).map_err(to_py)?, spec, stepping: 0.0 })
     }
 
     /// Reset the environments (all, or those where `mask` is true), one seed each.
@@ -256,7 +305,10 @@ impl LatentVecEnv {
     /// Primitive steps each environment's last latent step executed (0 where it was reset).
     fn executed<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u64>> {
         (0..self.inner.num_envs())
-            .map(|i| if self.inner.was_reset(i) && self.inner.autoreset_mode() == AutoresetMode::NextStep { 0 } else { self.inner.env(i).map_or(0, |e| e.last_executed() as u64) })
+            .map(|i| {
+                let skipped = self.inner.was_reset(i) == Some(true) && self.inner.autoreset_mode() == AutoresetMode::NextStep;
+                if skipped { 0 } else { self.inner.env(i).map_or(0, |e| e.last_executed() as u64) }
+            })
             .collect::<Vec<_>>()
             .into_pyarray(py)
     }
@@ -266,11 +318,11 @@ impl LatentVecEnv {
         let flat: Vec<f64> = self.inner.envs().flat_map(|e| e.last_chunk().to_vec()).collect();
         numpy::ndarray::Array2::from_shape_vec((self.inner.num_envs(), self.inner.action_dim()), flat)
             .map(|a| a.into_pyarray(py))
-            .map_err(|e| EquigymError::new_err(e.to_string()))
+            .map_err(|e| invalid_input(e.to_string()))
     }
 
     fn observe<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
-        obs_array(&self.inner, |i| Some(self.inner.obs(i).to_vec())).into_pyarray(py)
+        obs_array(&self.inner, |i| self.inner.obs(i)).into_pyarray(py)
     }
     fn episode_seeds<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u64>> {
         self.inner.episode_seeds().into_pyarray(py)
@@ -295,9 +347,18 @@ impl LatentVecEnv {
     fn autoreset_mode(&self) -> &'static str {
         self.inner.autoreset_mode().as_str()
     }
+    /// The task environments' read-only description.
+    #[getter]
+    fn spec(&self) -> Spec {
+        Spec(self.spec.clone())
+    }
+    #[getter]
+    fn task(&self) -> &'static str {
+        self.spec.task
+    }
     #[getter]
     fn horizon(&self) -> usize {
-        self.horizon
+        self.spec.horizon
     }
     #[getter]
     fn observation_dim(&self) -> usize {

@@ -1,45 +1,29 @@
-//! `equigym._core`: thin pyo3 bindings over `equigym-envs`.
+//! `equigym._core`: thin pyo3 bindings over `equigym-envs` and `equigym-wrappers`.
 //!
 //! This crate only converts types and errors; every behaviour lives in the Rust crates.
-//! Error mapping: shapes, NaN/inf, configuration, states and robot descriptions raise
-//! `ValueError` subclasses; calls out of order raise `ResetNeeded` (a `RuntimeError`); a missing
-//! file raises `FileNotFoundError`.
+//! - Options: one conversion of keyword arguments into the one options type
+//!   (`equigym_envs::EnvOptions`), in [`options`]; every environment class takes it.
+//! - Errors: one mapping from the crates' typed errors to the exception classes of
+//!   `equigym.errors` (all subclasses of `EquigymError`), in [`errors`].
+//! - Metadata: from `equigym_envs::EnvSpec`, a read-only description (no extra simulator).
+//! - Pickling: environments pickle as their options plus their bit-exact `get_state` bytes;
+//!   diffusion policies as the bytes of their file.
 
+mod errors;
 mod latent;
+mod options;
 mod symmetry;
-
-use std::path::PathBuf;
+mod vector;
 
 use equigym_envs::experts::{make_expert, Expert as RustExpert, ExpertOptions};
 use equigym_envs::tasks::{Evaluation, TASK_IDS};
-use equigym_envs::{Env as RustEnv, EnvConfig, EnvError, RewardKind, TaskOptions};
+use equigym_envs::{Env as RustEnv, EnvError, EnvSpec};
 use numpy::{IntoPyArray, PyArray1, PyArray3, PyArrayMethods, PyReadonlyArray1};
-use pyo3::create_exception;
-use pyo3::exceptions::{PyFileNotFoundError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::{PyBytes, PyDict, PyList};
+use pyo3::types::{PyBytes, PyDict, PyList, PyTuple};
 
-mod vector;
-
-create_exception!(_core, EquigymError, PyValueError, "Invalid input to an equigym environment.");
-create_exception!(_core, UrdfError, PyValueError, "The robot description (URDF) cannot be used.");
-create_exception!(_core, InvalidStateError, PyValueError, "A saved state cannot be restored.");
-create_exception!(_core, ResetNeeded, PyRuntimeError, "The environment must be reset before this call.");
-create_exception!(_core, PolicyError, PyValueError, "A diffusion-policy file is corrupt, truncated or does not fit the task.");
-
-fn to_py(e: EnvError) -> PyErr {
-    let msg = e.to_string();
-    match e {
-        EnvError::CallOrder(_) => ResetNeeded::new_err(msg),
-        EnvError::Urdf { ref reason, .. } if reason.starts_with("cannot read file") => PyFileNotFoundError::new_err(msg),
-        EnvError::Urdf { .. } => UrdfError::new_err(msg),
-        EnvError::InvalidState(_) => InvalidStateError::new_err(msg),
-        EnvError::Io(_) => PyRuntimeError::new_err(msg),
-        EnvError::WrongLength { .. } | EnvError::NonFinite { .. } | EnvError::InvalidConfig(_) => {
-            EquigymError::new_err(msg)
-        }
-    }
-}
+use crate::errors::{invalid_input, to_py};
+use crate::options::{env_config, options_kwargs};
 
 fn info_dict<'py>(py: Python<'py>, evaluation: &Evaluation) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
@@ -60,57 +44,24 @@ pub struct Env {
 
 #[pymethods]
 impl Env {
+    /// Build `task` with keyword options (see `equigym_envs::EnvOptions`: reward, urdf,
+    /// joint_limits, controller, init_joint_noise, horizon, physics, ranges, variant).
     #[new]
-    #[pyo3(signature = (task, *, reward="sparse", urdf=None, joint_limits=true, init_joint_noise=0.02, horizon=None, physics=None, ranges=None, variant=None))]
-    #[allow(clippy::too_many_arguments)]
-    fn new(
-        task: &str,
-        reward: &str,
-        urdf: Option<PathBuf>,
-        joint_limits: bool,
-        init_joint_noise: f64,
-        horizon: Option<usize>,
-        physics: Option<&Bound<'_, PyDict>>,
-        ranges: Option<&Bound<'_, PyDict>>,
-        variant: Option<String>,
-    ) -> PyResult<Self> {
-        let mut config = EnvConfig::new(task);
-        config.reward = reward.parse::<RewardKind>().map_err(to_py)?;
-        config.urdf = urdf;
-        config.physics.joint_limits = joint_limits;
-        config.init_joint_noise = init_joint_noise;
-        config.horizon = horizon;
-        if let Some(physics) = physics {
-            for (key, value) in physics.iter() {
-                let key: String = key.extract()?;
-                let p = &mut config.physics;
-                match key.as_str() {
-                    "timestep" => p.timestep = value.extract()?,
-                    "substeps" => p.substeps = value.extract()?,
-                    "solver_iterations" => p.solver_iterations = value.extract()?,
-                    "friction" => p.friction = value.extract()?,
-                    "max_hand_force" => p.max_hand_force = value.extract()?,
-                    "max_hand_torque" => p.max_hand_torque = value.extract()?,
-                    "max_finger_force" => p.max_finger_force = value.extract()?,
-                    "finger_speed" => p.finger_speed = value.extract()?,
-                    "servo_time_constant" => p.servo_time_constant = value.extract()?,
-                    "cartesian_control" => p.cartesian_control = value.extract()?,
-                    other => return Err(EquigymError::new_err(format!("unknown physics option '{other}'"))),
-                }
-            }
-        }
-        config.task_options.variant = variant;
-        if let Some(ranges) = ranges {
-            let mut options = TaskOptions { variant: config.task_options.variant.clone(), ..TaskOptions::default() };
-            for (key, value) in ranges.iter() {
-                let (lo, hi): (f64, f64) = value.extract().map_err(|_| {
-                    EquigymError::new_err(format!("range '{key}' must be a (low, high) pair of numbers"))
-                })?;
-                options.ranges.push((key.extract()?, lo, hi));
-            }
-            config.task_options = options;
-        }
-        Ok(Self { inner: RustEnv::new(config).map_err(to_py)? })
+    #[pyo3(signature = (task, **options))]
+    fn new(task: &str, options: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
+        Ok(Self { inner: RustEnv::new(env_config(task, options)?).map_err(to_py)? })
+    }
+
+    /// Pickling: the arguments that rebuild this environment ...
+    fn __getnewargs_ex__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyTuple>, Bound<'py, PyDict>)> {
+        Ok((PyTuple::new(py, [self.inner.task().id()])?, options_kwargs(py, self.inner.config())?))
+    }
+    /// ... and its full state (`get_state`), so an unpickled copy continues bit for bit.
+    fn __getstate__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyBytes>> {
+        self.get_state(py)
+    }
+    fn __setstate__(&mut self, state: &[u8]) -> PyResult<()> {
+        self.set_state(state)
     }
 
     /// Start an episode from `seed`; returns the observation (float64).
@@ -126,7 +77,7 @@ impl Env {
         py: Python<'py>,
         action: PyReadonlyArray1<'py, f64>,
     ) -> PyResult<(Bound<'py, PyArray1<f64>>, f64, bool, bool, Bound<'py, PyDict>)> {
-        let action = action.as_slice().map_err(|e| EquigymError::new_err(format!("action: {e}")))?.to_vec();
+        let action = action.as_slice().map_err(|e| invalid_input(format!("action: {e}")))?.to_vec();
         let inner = &mut self.inner;
         let (result, obs) = py.detach(|| {
             let r = inner.step(&action)?;
@@ -171,6 +122,15 @@ impl Env {
     }
 
     #[getter]
+    fn elapsed_steps(&self) -> usize {
+        self.inner.elapsed_steps()
+    }
+    /// The read-only description: task, horizon, dimensions, action bounds, layouts.
+    #[getter]
+    fn spec(&self) -> Spec {
+        Spec(self.inner.spec())
+    }
+    #[getter]
     fn task(&self) -> &'static str {
         self.inner.task().id()
     }
@@ -179,39 +139,63 @@ impl Env {
         self.inner.horizon()
     }
     #[getter]
-    fn elapsed_steps(&self) -> usize {
-        self.inner.elapsed_steps()
-    }
-    #[getter]
     fn observation_dim(&self) -> usize {
         self.inner.observation_layout().dim()
     }
+}
+
+/// What an environment is, without its simulator (`equigym_envs::EnvSpec`): every class's
+/// metadata comes from one of these.
+#[pyclass(module = "equigym._core", name = "EnvSpec", frozen)]
+pub struct Spec(pub(crate) EnvSpec);
+
+#[pymethods]
+impl Spec {
+    #[getter]
+    fn task(&self) -> &'static str {
+        self.0.task
+    }
+    /// Episode length in control steps.
+    #[getter]
+    fn horizon(&self) -> usize {
+        self.0.horizon
+    }
+    #[getter]
+    fn observation_dim(&self) -> usize {
+        self.0.observation_layout.dim()
+    }
+    #[getter]
+    fn action_dim(&self) -> usize {
+        self.0.action_layout.dim()
+    }
     #[getter]
     fn max_gripper_width(&self) -> f64 {
-        self.inner.max_gripper_width()
+        self.0.max_gripper_width
     }
     /// Control period in seconds.
     #[getter]
     fn control_period(&self) -> f64 {
-        self.inner.config().physics.control_period()
+        self.0.control_period
     }
+    /// Lower bounds of the raw (absolute) action.
     #[getter]
     fn action_low<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        self.inner.action_bounds().0.to_vec().into_pyarray(py)
+        self.0.action_low.to_vec().into_pyarray(py)
     }
+    /// Upper bounds of the raw (absolute) action.
     #[getter]
     fn action_high<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        self.inner.action_bounds().1.to_vec().into_pyarray(py)
+        self.0.action_high.to_vec().into_pyarray(py)
     }
-
     /// Observation fields: list of dicts with name, start, len, kind and rep.
     #[getter]
     fn observation_layout<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
-        layout_list(py, self.inner.observation_layout())
+        layout_list(py, &self.0.observation_layout)
     }
+    /// Action fields, as `observation_layout`.
     #[getter]
     fn action_layout<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
-        layout_list(py, &self.inner.action_layout())
+        layout_list(py, &self.0.action_layout)
     }
 }
 
@@ -261,20 +245,15 @@ impl Expert {
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    let py = m.py();
     m.add_class::<Env>()?;
+    m.add_class::<Spec>()?;
     m.add_class::<Expert>()?;
     m.add_class::<symmetry::TaskSymmetry>()?;
     m.add_class::<latent::DiffusionPolicy>()?;
     m.add_class::<latent::LatentEnv>()?;
     m.add_class::<latent::LatentVecEnv>()?;
-    m.add("PolicyError", py.get_type::<PolicyError>())?;
-    m.add_function(wrap_pyfunction!(symmetry::measure_symmetry_breaking, m)?)?;
     m.add_class::<vector::VecEnv>()?;
-    m.add("EquigymError", py.get_type::<EquigymError>())?;
-    m.add("UrdfError", py.get_type::<UrdfError>())?;
-    m.add("InvalidStateError", py.get_type::<InvalidStateError>())?;
-    m.add("ResetNeeded", py.get_type::<ResetNeeded>())?;
+    m.add_function(wrap_pyfunction!(symmetry::measure_symmetry_breaking, m)?)?;
     m.add("TASK_IDS", TASK_IDS.to_vec())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

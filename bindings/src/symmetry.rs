@@ -5,23 +5,15 @@
 use equigym_envs::TaskOptions;
 use equigym_wrappers::breaking::{measure, BreakingConfig};
 use equigym_wrappers::{
-    transform_state, Block, Error as SymmetryError, Group, PlanarRotation, Representation, TaskSymmetry as RustSymmetry,
+    transform_state, Block, Group, PlanarRotation, Representation, TaskSymmetry as RustSymmetry,
 };
 use numpy::ndarray::{ArrayD, IxDyn};
 use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyReadonlyArray1, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use crate::{layout_list, to_py, Env, EquigymError};
-
-pub(crate) fn sym_err(e: SymmetryError) -> PyErr {
-    match e {
-        SymmetryError::Env(e) => to_py(e),
-        SymmetryError::InvalidGroup(_) => EquigymError::new_err(e.to_string()),
-        SymmetryError::Policy { .. } => crate::PolicyError::new_err(e.to_string()),
-        SymmetryError::PolicyNotFound(_) => pyo3::exceptions::PyFileNotFoundError::new_err(e.to_string()),
-    }
-}
+use crate::errors::{invalid_input, to_py};
+use crate::{layout_list, Env};
 
 /// A task's group action on observations, actions, action chunks, latent noise and states.
 #[pyclass(module = "equigym._core", name = "TaskSymmetry")]
@@ -35,7 +27,7 @@ impl TaskSymmetry {
             "observation" => Ok(&self.inner.observation),
             "action" => Ok(&self.inner.action),
             "chunk" | "latent" => Ok(&self.inner.chunk),
-            other => Err(EquigymError::new_err(format!(
+            other => Err(invalid_input(format!(
                 "unknown space '{other}' (use 'observation', 'action', 'chunk' or 'latent')"
             ))),
         }
@@ -46,8 +38,8 @@ impl TaskSymmetry {
             .iter()
             .map(|&k| {
                 let k = usize::try_from(k)
-                    .map_err(|_| EquigymError::new_err(format!("group element index must be >= 0, got {k}")))?;
-                self.inner.group.element(k).map_err(sym_err)
+                    .map_err(|_| invalid_input(format!("group element index must be >= 0, got {k}")))?;
+                self.inner.group.element(k).map_err(to_py)
             })
             .collect()
     }
@@ -64,7 +56,7 @@ impl TaskSymmetry {
         let shape = data.shape().to_vec();
         let last = shape.last().copied().unwrap_or(0);
         if shape.is_empty() || last != rep.dim() {
-            return Err(EquigymError::new_err(format!(
+            return Err(invalid_input(format!(
                 "{space}: expected an array whose last axis has {} values, got shape {shape:?}",
                 rep.dim()
             )));
@@ -72,15 +64,15 @@ impl TaskSymmetry {
         let rows: usize = shape[..shape.len() - 1].iter().product();
         let mut values: Vec<f64> = data.as_array().iter().copied().collect();
         match elements.len() {
-            1 => rep.act_batch(&elements[0], &mut values).map_err(sym_err)?,
-            n if n == rows => rep.act_each(&elements, &mut values).map_err(sym_err)?,
+            1 => rep.act_batch(&elements[0], &mut values).map_err(to_py)?,
+            n if n == rows => rep.act_each(&elements, &mut values).map_err(to_py)?,
             n => {
-                return Err(EquigymError::new_err(format!(
+                return Err(invalid_input(format!(
                     "{space}: got {n} group elements for {rows} rows (give one, or one per row)"
                 )))
             }
         }
-        let out = ArrayD::from_shape_vec(IxDyn(&shape), values).map_err(|e| EquigymError::new_err(e.to_string()))?;
+        let out = ArrayD::from_shape_vec(IxDyn(&shape), values).map_err(|e| invalid_input(e.to_string()))?;
         Ok(out.into_pyarray(py))
     }
 }
@@ -90,9 +82,9 @@ impl TaskSymmetry {
     #[new]
     #[pyo3(signature = (task, *, group="C8", chunk_len=4, variant=None))]
     fn new(task: &str, group: &str, chunk_len: usize, variant: Option<String>) -> PyResult<Self> {
-        let group: Group = group.parse().map_err(sym_err)?;
+        let group: Group = group.parse().map_err(to_py)?;
         let options = TaskOptions { variant, ..Default::default() };
-        Ok(Self { inner: RustSymmetry::new(task, &options, group, chunk_len).map_err(sym_err)? })
+        Ok(Self { inner: RustSymmetry::new(task, &options, group, chunk_len).map_err(to_py)? })
     }
 
     #[getter]
@@ -142,7 +134,7 @@ impl TaskSymmetry {
     }
     /// Angle (rad) of element k of C_N.
     fn element_angle(&self, k: usize) -> PyResult<f64> {
-        Ok(self.inner.group.element(k).map_err(sym_err)?.angle())
+        Ok(self.inner.group.element(k).map_err(to_py)?.angle())
     }
     /// g . x for elements given by index (one, or one per row).
     fn act_elements<'py>(
@@ -163,7 +155,7 @@ impl TaskSymmetry {
         data: PyReadonlyArrayDyn<'py, f64>,
         angles: PyReadonlyArray1<'py, f64>,
     ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        let elements = angles.as_slice()?.iter().map(|a| PlanarRotation::new(*a)).collect::<Result<Vec<_>, _>>().map_err(sym_err)?;
+        let elements = angles.as_slice()?.iter().map(|a| PlanarRotation::new(*a)).collect::<Result<Vec<_>, _>>().map_err(to_py)?;
         self.apply(py, space, data, elements)
     }
     /// The representation matrix of element `element` (index) or of rotation `angle`.
@@ -178,7 +170,7 @@ impl TaskSymmetry {
         let g = self.one_element(element, angle)?;
         let rep = self.representation(space)?;
         let d = rep.dim();
-        let m = numpy::ndarray::Array2::from_shape_vec((d, d), rep.matrix(&g)).map_err(|e| EquigymError::new_err(e.to_string()))?;
+        let m = numpy::ndarray::Array2::from_shape_vec((d, d), rep.matrix(&g)).map_err(|e| invalid_input(e.to_string()))?;
         Ok(m.into_pyarray(py))
     }
     /// g . s: rotate the environment's state in place (objects, hand, fingers; the base
@@ -192,14 +184,14 @@ impl TaskSymmetry {
         angle: Option<f64>,
     ) -> PyResult<Bound<'py, PyDict>> {
         if env.inner.task().id() != self.inner.task {
-            return Err(EquigymError::new_err(format!(
+            return Err(invalid_input(format!(
                 "this symmetry is for task '{}', the environment runs '{}'",
                 self.inner.task,
                 env.inner.task().id()
             )));
         }
         let g = self.one_element(element, angle)?;
-        let fit = transform_state(&mut env.inner, &g).map_err(sym_err)?;
+        let fit = transform_state(&mut env.inner, &g).map_err(to_py)?;
         let d = PyDict::new(py);
         d.set_item("position_error", fit.position_error)?;
         d.set_item("rotation_error", fit.rotation_error)?;
@@ -211,9 +203,9 @@ impl TaskSymmetry {
 impl TaskSymmetry {
     fn one_element(&self, element: Option<usize>, angle: Option<f64>) -> PyResult<PlanarRotation> {
         match (element, angle) {
-            (Some(k), None) => self.inner.group.element(k).map_err(sym_err),
-            (None, Some(a)) => PlanarRotation::new(a).map_err(sym_err),
-            _ => Err(EquigymError::new_err("give exactly one of element= (an index) or angle= (radians)")),
+            (Some(k), None) => self.inner.group.element(k).map_err(to_py),
+            (None, Some(a)) => PlanarRotation::new(a).map_err(to_py),
+            _ => Err(invalid_input("give exactly one of element= (an index) or angle= (radians)")),
         }
     }
 }
@@ -247,6 +239,6 @@ pub fn measure_symmetry_breaking(
         replay_slack,
         seed,
     };
-    let report = py.detach(|| measure(&config)).map_err(sym_err)?;
-    serde_json::to_string(&report).map_err(|e| EquigymError::new_err(e.to_string()))
+    let report = py.detach(|| measure(&config)).map_err(to_py)?;
+    serde_json::to_string(&report).map_err(|e| invalid_input(e.to_string()))
 }

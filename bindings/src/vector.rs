@@ -4,17 +4,18 @@
 //! float64 array, observations go out as one (B, obs_dim) float32 array, and the GIL is
 //! released while the environments step on the batch's thread pool.
 
-use std::path::PathBuf;
 use std::time::Instant;
 
 use equigym_envs::batch::ActionDecoder;
-use equigym_envs::{AutoresetMode, BatchEnv, BatchMember};
+use equigym_envs::{AutoresetMode, BatchEnv, BatchMember, Env as RustEnv, EnvSpec};
 use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyList};
+use pyo3::types::PyDict;
 
-use crate::{layout_list, to_py, Env, EquigymError};
+use crate::errors::{invalid_input, to_py};
+use crate::options::env_config;
+use crate::Spec;
 
 /// What `step` returns: (obs, rewards, terminated, truncated, success, reset, final_obs).
 pub(crate) type StepOut<'py> = (
@@ -32,21 +33,21 @@ pub(crate) type StepOut<'py> = (
 #[pyclass(module = "equigym._core", name = "VecEnv")]
 pub struct VecEnv {
     inner: BatchEnv,
-    /// One environment's action bounds, observation layout, ... (never stepped).
-    probe: Env,
+    /// What the environments are (task, horizon, bounds, layouts), read-only.
+    spec: EnvSpec,
     /// Seconds spent inside the Rust batched step (GIL released), for overhead measurements.
     stepping: f64,
 }
 
-pub(crate) fn obs_array<E: BatchMember, D: ActionDecoder>(
-    batch: &BatchEnv<E, D>,
-    rows: impl Fn(usize) -> Option<Vec<f64>>,
+pub(crate) fn obs_array<'a, E: BatchMember, D: ActionDecoder>(
+    batch: &'a BatchEnv<E, D>,
+    rows: impl Fn(usize) -> Option<&'a [f64]>,
 ) -> Array2<f32> {
     let (n, d) = (batch.num_envs(), batch.observation_dim());
     let mut out = Array2::<f32>::zeros((n, d));
     for (i, mut row) in out.rows_mut().into_iter().enumerate() {
         if let Some(values) = rows(i) {
-            for (o, x) in row.iter_mut().zip(values) {
+            for (o, &x) in row.iter_mut().zip(values) {
                 *o = x as f32;
             }
         }
@@ -74,7 +75,7 @@ pub(crate) fn reset_batch<'py, E: BatchMember, D: ActionDecoder>(
         Some(mask) => batch.reset_masked(&seeds, &mask),
     })
     .map_err(to_py)?;
-    Ok(obs_array(batch, |i| Some(batch.obs(i).to_vec())).into_pyarray(py))
+    Ok(obs_array(batch, |i| batch.obs(i)).into_pyarray(py))
 }
 
 /// Step a batch with a (B, action_dim) array (`what` names the actions in the shape error) with
@@ -89,7 +90,7 @@ pub(crate) fn step_batch<'py, E: BatchMember, D: ActionDecoder>(
     let shape = actions.shape();
     let (n, dim) = (batch.num_envs(), batch.action_dim());
     if shape != [n, dim] {
-        return Err(EquigymError::new_err(format!("{what} must have shape ({n}, {dim}), got {shape:?}")));
+        return Err(invalid_input(format!("{what} must have shape ({n}, {dim}), got {shape:?}")));
     }
     let flat = flat_rows(&actions);
     let (result, secs) = py.detach(|| {
@@ -105,11 +106,11 @@ pub(crate) fn step_batch<'py, E: BatchMember, D: ActionDecoder>(
 /// The arrays a batched step returns (see `VecEnv.step`).
 fn step_outputs<'py, E: BatchMember, D: ActionDecoder>(py: Python<'py>, b: &BatchEnv<E, D>) -> StepOut<'py> {
     let n = b.num_envs();
-    let obs = obs_array(b, |i| Some(b.obs(i).to_vec()));
-    let steps: Vec<_> = (0..n).map(|i| b.last_step(i)).collect();
-    let reset: Vec<bool> = (0..n).map(|i| b.was_reset(i)).collect();
+    let obs = obs_array(b, |i| b.obs(i));
+    let steps: Vec<_> = (0..n).map(|i| b.last_step(i).unwrap_or_default()).collect();
+    let reset: Vec<bool> = (0..n).map(|i| b.was_reset(i).unwrap_or_default()).collect();
     let final_obs = (b.autoreset_mode() == AutoresetMode::SameStep && reset.iter().any(|r| *r))
-        .then(|| obs_array(b, |i| b.final_obs(i).map(<[f64]>::to_vec)).into_pyarray(py));
+        .then(|| obs_array(b, |i| b.final_obs(i)).into_pyarray(py));
     (
         obs.into_pyarray(py),
         steps.iter().map(|s| s.reward).collect::<Vec<_>>().into_pyarray(py),
@@ -123,33 +124,24 @@ fn step_outputs<'py, E: BatchMember, D: ActionDecoder>(py: Python<'py>, b: &Batc
 
 #[pymethods]
 impl VecEnv {
+    /// `num_envs` environments of `task` with the options of `Env` as keyword arguments.
     #[new]
-    #[pyo3(signature = (task, num_envs, *, threads=0, autoreset_mode="next_step", reward="sparse", urdf=None, joint_limits=true, init_joint_noise=0.02, horizon=None, physics=None, ranges=None, variant=None))]
-    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (task, num_envs, *, threads=0, autoreset_mode="next_step", **options))]
     fn new(
         task: &str,
         num_envs: usize,
         threads: usize,
         autoreset_mode: &str,
-        reward: &str,
-        urdf: Option<PathBuf>,
-        joint_limits: bool,
-        init_joint_noise: f64,
-        horizon: Option<usize>,
-        physics: Option<&Bound<'_, PyDict>>,
-        ranges: Option<&Bound<'_, PyDict>>,
-        variant: Option<String>,
+        options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
         if num_envs == 0 {
-            return Err(EquigymError::new_err("num_envs must be at least 1"));
+            return Err(invalid_input("num_envs must be at least 1"));
         }
         let mode = autoreset_mode.parse::<AutoresetMode>().map_err(to_py)?;
-        let make = || {
-            Env::new(task, reward, urdf.clone(), joint_limits, init_joint_noise, horizon, physics, ranges, variant.clone())
-        };
-        let probe = make()?;
-        let envs = (0..num_envs).map(|_| make().map(|e| e.inner)).collect::<PyResult<Vec<_>>>()?;
-        Ok(Self { inner: BatchEnv::new(envs, threads, mode).map_err(to_py)?, probe, stepping: 0.0 })
+        let config = env_config(task, options)?;
+        let envs = (0..num_envs).map(|_| RustEnv::new(config.clone())).collect::<Result<Vec<_>, _>>().map_err(to_py)?;
+        let spec = envs[0].spec();
+        Ok(Self { inner: BatchEnv::new(envs, threads, mode).map_err(to_py)?, spec, stepping: 0.0 })
     }
 
     /// Reset the environments (all, or those where `mask` is true) with one seed each;
@@ -176,14 +168,14 @@ impl VecEnv {
 
     /// Current observations, (B, obs_dim) float32.
     fn observe<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
-        obs_array(&self.inner, |i| Some(self.inner.obs(i).to_vec())).into_pyarray(py)
+        obs_array(&self.inner, |i| self.inner.obs(i)).into_pyarray(py)
     }
 
-    /// The actions that hold every robot where it is, (B, 10) float64.
+    /// The actions that hold every robot where it is, (B, action_dim) float64.
     fn current_targets<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let flat: Vec<f64> = self.inner.envs().flat_map(|e| e.current_target()).collect();
-        let a = Array2::from_shape_vec((self.inner.num_envs(), 10), flat)
-            .map_err(|e| EquigymError::new_err(e.to_string()))?;
+        let a = Array2::from_shape_vec((self.inner.num_envs(), equigym_envs::ACTION_DIM), flat)
+            .map_err(|e| invalid_input(e.to_string()))?;
         Ok(a.into_pyarray(py))
     }
 
@@ -197,7 +189,7 @@ impl VecEnv {
         let env = self
             .inner
             .env(i)
-            .ok_or_else(|| EquigymError::new_err(format!("environment index {i} out of range")))?;
+            .ok_or_else(|| invalid_input(format!("environment index {i} out of range")))?;
         Ok(pyo3::types::PyBytes::new(py, &env.get_state().map_err(to_py)?))
     }
 
@@ -223,13 +215,18 @@ impl VecEnv {
     fn autoreset_mode(&self) -> &'static str {
         self.inner.autoreset_mode().as_str()
     }
+    /// The read-only description shared by every environment of the batch.
+    #[getter]
+    fn spec(&self) -> Spec {
+        Spec(self.spec.clone())
+    }
     #[getter]
     fn task(&self) -> &'static str {
-        self.probe.inner.task().id()
+        self.spec.task
     }
     #[getter]
     fn horizon(&self) -> usize {
-        self.probe.inner.horizon()
+        self.spec.horizon
     }
     #[getter]
     fn observation_dim(&self) -> usize {
@@ -238,29 +235,5 @@ impl VecEnv {
     #[getter]
     fn action_dim(&self) -> usize {
         self.inner.action_dim()
-    }
-    #[getter]
-    fn max_gripper_width(&self) -> f64 {
-        self.probe.inner.max_gripper_width()
-    }
-    #[getter]
-    fn control_period(&self) -> f64 {
-        self.probe.inner.config().physics.control_period()
-    }
-    #[getter]
-    fn action_low<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        self.probe.inner.action_bounds().0.to_vec().into_pyarray(py)
-    }
-    #[getter]
-    fn action_high<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        self.probe.inner.action_bounds().1.to_vec().into_pyarray(py)
-    }
-    #[getter]
-    fn observation_layout<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
-        layout_list(py, self.probe.inner.observation_layout())
-    }
-    #[getter]
-    fn action_layout<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
-        layout_list(py, &self.probe.inner.action_layout())
     }
 }

@@ -22,23 +22,30 @@
 //!
 //! `reset(seeds)` resets environment `i` with episode seed `seeds[i]`, exactly like
 //! `Env::reset(seeds[i])`. Each later (automatic) reset of environment `i` draws its episode
-//! seed from a per-environment stream seeded with `seeds[i]` ([`episode_seed_stream`]), so a
-//! batch is a pure function of its seeds and actions, independent of the thread count; the
+//! seed from a per-environment stream seeded with `seeds[i]` ([`episode_seed_stream`], the
+//! [`SeedUse::AutoReset`] stream of `crate::rng`), so a batch is a pure function of its seeds
+//! and actions, independent of the thread count; the
 //! seed of each environment's current episode is available from [`BatchEnv::episode_seeds`],
 //! so a single `Env` reset with that seed reproduces the episode bit for bit.
 //!
 //! # Genericity
 //!
-//! The batch is generic over what it steps ([`BatchMember`]); `Env` is one. A later
-//! latent-action environment plugs in as another member, and an [`ActionDecoder`] maps the
-//! batch's actions to the members' actions in one batched call before the parallel step
-//! (e.g. a diffusion policy denoising all B latent noises in one pass).
+//! The batch is generic over what it steps ([`BatchMember`]): `Env` is one, and
+//! `equigym_wrappers::latent::LatentEnv` another. An [`ActionDecoder`] maps the batch's actions
+//! to the members' actions in one batched call before the parallel step (the latent vector
+//! environment's decoder denoises all B latent noises with one batched DDIM).
+//!
+//! # Indices
+//!
+//! Per-environment accessors ([`BatchEnv::obs`], [`BatchEnv::last_step`],
+//! [`BatchEnv::was_reset`], [`BatchEnv::final_obs`], [`BatchEnv::env`]) return `None` for an
+//! index out of range; nothing here panics on user input.
 
 use rayon::prelude::*;
 
 use crate::env::{Env, ACTION_DIM};
 use crate::error::{check_finite, EnvError, Result};
-use crate::rng::EpisodeRng;
+use crate::rng::{EpisodeRng, SeedUse};
 
 /// What one member step reports.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -136,10 +143,10 @@ impl std::str::FromStr for AutoresetMode {
     }
 }
 
-/// The per-environment stream that seeds automatic resets after an episode started from `seed`.
+/// The per-environment stream that seeds automatic resets after an episode started from `seed`
+/// ([`SeedUse::AutoReset`]).
 pub fn episode_seed_stream(seed: u64) -> EpisodeRng {
-    // A fixed odd constant keeps this stream apart from the episode's own stream (same seed).
-    EpisodeRng::from_seed(seed ^ 0x9E37_79B9_7F4A_7C15)
+    EpisodeRng::for_use(seed, SeedUse::AutoReset)
 }
 
 /// One environment of the batch with its output slots.
@@ -353,9 +360,10 @@ impl<E: BatchMember, D: ActionDecoder> BatchEnv<E, D> {
         result
     }
 
-    /// Observation of environment `i` after the last call (the reset observation where it reset).
-    pub fn obs(&self, i: usize) -> &[f64] {
-        &self.slots[i].obs
+    /// Observation of environment `i` after the last call (the reset observation where it
+    /// reset); `None` when `i` is out of range.
+    pub fn obs(&self, i: usize) -> Option<&[f64]> {
+        self.slots.get(i).map(|s| &s.obs[..])
     }
     /// Write all observations, row-major (B x obs dim), converting with `f`.
     pub fn write_obs<T>(&self, out: &mut [T], f: impl Fn(f64) -> T) {
@@ -365,26 +373,29 @@ impl<E: BatchMember, D: ActionDecoder> BatchEnv<E, D> {
             }
         }
     }
-    /// What environment `i`'s last step reported (all zero/false where it was reset in NextStep mode).
-    pub fn last_step(&self, i: usize) -> MemberStep {
-        self.slots[i].step
+    /// What environment `i`'s last step reported (all zero/false where it was reset in NextStep
+    /// mode); `None` when `i` is out of range.
+    pub fn last_step(&self, i: usize) -> Option<MemberStep> {
+        self.slots.get(i).map(|s| s.step)
     }
-    /// Whether environment `i` was reset during the last call to `step`.
-    pub fn was_reset(&self, i: usize) -> bool {
-        self.slots[i].reset_now
+    /// Whether environment `i` was reset during the last call to `step`; `None` when `i` is out
+    /// of range.
+    pub fn was_reset(&self, i: usize) -> Option<bool> {
+        self.slots.get(i).map(|s| s.reset_now)
     }
     /// SameStep mode: the last observation of the episode that ended on the last step, where
-    /// [`BatchEnv::was_reset`] is true.
+    /// [`BatchEnv::was_reset`] is true; `None` otherwise or when `i` is out of range.
     pub fn final_obs(&self, i: usize) -> Option<&[f64]> {
-        let s = &self.slots[i];
+        let s = self.slots.get(i)?;
         (self.mode == AutoresetMode::SameStep && s.reset_now).then_some(&s.final_obs[..])
     }
     /// Seed of environment `i`'s current episode.
     pub fn episode_seeds(&self) -> Vec<u64> {
         self.slots.iter().map(|s| s.episode_seed).collect()
     }
-    /// How many automatic resets environment `i` has had since its last explicit reset.
-    pub fn episode_index(&self, i: usize) -> u64 {
-        self.slots[i].episode
+    /// How many automatic resets environment `i` has had since its last explicit reset; `None`
+    /// when `i` is out of range.
+    pub fn episode_index(&self, i: usize) -> Option<u64> {
+        self.slots.get(i).map(|s| s.episode)
     }
 }

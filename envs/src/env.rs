@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{check_finite, EnvError, Result};
 use crate::layout::Layout;
 use crate::math::rotation_from_rot6d;
+use crate::options::EnvSpec;
 use crate::rng::EpisodeRng;
 use crate::robot::{load_urdf, parse_urdf, IkReport, RobotModel};
 use crate::scene::Scene;
@@ -51,7 +52,7 @@ impl EnvConfig {
             reward: RewardKind::Sparse,
             physics: PhysicsConfig::default(),
             urdf: None,
-            init_joint_noise: 0.02,
+            init_joint_noise: crate::options::DEFAULT_INIT_JOINT_NOISE,
             horizon: None,
             task_options: TaskOptions::default(),
         }
@@ -67,7 +68,19 @@ pub struct StepResult {
     pub evaluation: Evaluation,
 }
 
-/// Bytes of a saved environment state (see [`Env::get_state`]).
+/// Length of the checksum that ends the bytes of a saved state.
+const STATE_CHECKSUM_LEN: usize = 8;
+
+/// FNV-1a (64-bit) of a saved state's payload: a stable, dependency-free integrity check (not a
+/// defence against deliberate forgery).
+fn state_checksum(bytes: &[u8]) -> u64 {
+    const OFFSET_BASIS: u64 = 0xcbf2_9ce4_8422_2325;
+    const PRIME: u64 = 0x0000_0100_0000_01b3;
+    bytes.iter().fold(OFFSET_BASIS, |h, &b| (h ^ u64::from(b)).wrapping_mul(PRIME))
+}
+
+/// Bytes of a saved environment state (see [`Env::get_state`]): this, postcard-encoded, then
+/// [`STATE_CHECKSUM_LEN`] bytes of [`state_checksum`].
 #[derive(Serialize, Deserialize)]
 struct SavedState {
     task: String,
@@ -167,6 +180,21 @@ impl Env {
     }
     pub fn max_gripper_width(&self) -> f64 {
         self.scene.robot().max_gripper_width()
+    }
+
+    /// The read-only description of this environment (task, horizon, bounds, layouts).
+    pub fn spec(&self) -> EnvSpec {
+        let (action_low, action_high) = self.action_bounds();
+        EnvSpec {
+            task: self.task.id(),
+            horizon: self.horizon,
+            control_period: self.config.physics.control_period(),
+            max_gripper_width: self.max_gripper_width(),
+            action_low,
+            action_high,
+            observation_layout: self.observation_layout().clone(),
+            action_layout: self.action_layout(),
+        }
     }
 
     /// Lower and upper bounds of the raw action.
@@ -307,13 +335,22 @@ impl Env {
             task_params: self.task.episode_params(),
             last_target: self.last_target,
         };
-        postcard::to_stdvec(&saved).map_err(|e| EnvError::InvalidState(format!("cannot serialise: {e}")))
+        let mut bytes =
+            postcard::to_stdvec(&saved).map_err(|e| EnvError::InvalidState(format!("cannot serialise: {e}")))?;
+        bytes.extend_from_slice(&state_checksum(&bytes).to_le_bytes());
+        Ok(bytes)
     }
 
     /// Restore a state from [`Env::get_state`]; continuing from it is bitwise identical.
     /// On error the environment is left unchanged.
+    /// The bytes carry a checksum: edited, truncated or foreign bytes are refused before they
+    /// reach the physics engine (which trusts its own serialised state).
     pub fn set_state(&mut self, bytes: &[u8]) -> Result<()> {
-        let saved: SavedState = postcard::from_bytes(bytes)
+        let payload = match bytes.len().checked_sub(STATE_CHECKSUM_LEN) {
+            Some(n) if state_checksum(&bytes[..n]).to_le_bytes() == bytes[n..] => &bytes[..n],
+            _ => return Err(EnvError::InvalidState("not an equigym state (checksum mismatch: edited or truncated bytes)".into())),
+        };
+        let saved: SavedState = postcard::from_bytes(payload)
             .map_err(|e| EnvError::InvalidState(format!("not an equigym state ({e})")))?;
         if saved.task != self.task.id() {
             return Err(EnvError::InvalidState(format!(

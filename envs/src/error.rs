@@ -23,6 +23,9 @@ pub enum EnvError {
     /// A saved state could not be restored.
     #[error("invalid state: {0}")]
     InvalidState(String),
+    /// A file that an option names does not exist (e.g. a URDF path).
+    #[error("{what} {path}: no such file")]
+    FileNotFound { what: String, path: String },
     /// Writing an image failed.
     #[error("i/o error: {0}")]
     Io(String),

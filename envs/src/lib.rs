@@ -17,8 +17,11 @@
 //! ```
 //!
 //! Modules by domain: [`robot`] (URDF, kinematics, IK, the articulated rig, arm controllers),
-//! [`world`] (physics settings, table), [`scene`] (world + robot + servo loop), [`tasks`] (Lift, ...), [`env`] (reset/step/state), [`batch`] (B environments on a thread pool, auto-reset), [`experts`] (scripted
-//! demonstrators), [`render`] (CPU ray caster), [`layout`] (named observation slices).
+//! [`world`] (physics settings, table), [`scene`] (world + robot + servo loop), [`tasks`]
+//! (Lift, ...), [`env`] (reset/step/state), [`batch`] (B environments on a thread pool,
+//! auto-reset), [`options`] (the one options type and the read-only spec), [`rng`] (seed
+//! streams and their tags), [`experts`] (scripted demonstrators), [`render`] (CPU ray caster),
+//! [`layout`] (named observation slices).
 
 pub mod batch;
 pub mod env;
@@ -26,6 +29,7 @@ pub mod error;
 pub mod experts;
 pub mod layout;
 pub mod math;
+pub mod options;
 pub mod render;
 pub mod rng;
 pub mod robot;
@@ -37,5 +41,6 @@ pub use batch::{AutoresetMode, BatchEnv, BatchMember, MemberStep};
 pub use env::{Env, EnvConfig, StepResult, ACTION_DIM};
 pub use error::{EnvError, Result};
 pub use layout::{Field, FieldKind, Layout};
+pub use options::{Controller, EnvOptions, EnvSpec};
 pub use world::PhysicsConfig;
 pub use tasks::{RewardKind, TaskOptions};

@@ -13,9 +13,13 @@ pub fn rot6d(q: &UnitQuaternion<f64>) -> [f64; 6] {
     [m[(0, 0)], m[(0, 1)], m[(0, 2)], m[(1, 0)], m[(1, 1)], m[(1, 2)]]
 }
 
-/// Rotation from a 6D form by Gram-Schmidt on the two rows. Returns `None` when the rows are
-/// (nearly) zero or parallel, where no rotation is defined.
+/// Rotation from a 6D form by Gram-Schmidt on the two rows. Returns `None` when `r` does not
+/// hold exactly 6 finite values or the rows are (nearly) zero or parallel, where no rotation is
+/// defined.
 pub fn rotation_from_rot6d(r: &[f64]) -> Option<UnitQuaternion<f64>> {
+    if r.len() != 6 || r.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
     let a = Vector3::new(r[0], r[1], r[2]);
     let b = Vector3::new(r[3], r[4], r[5]);
     let an = a.norm();
@@ -84,5 +88,10 @@ mod tests {
         assert!(q.angle_to(&back) < 1e-9);
         assert!(rotation_from_rot6d(&[0.0; 6]).is_none());
         assert!(rotation_from_rot6d(&[1.0, 0.0, 0.0, 2.0, 0.0, 0.0]).is_none());
+        // Wrong lengths and non-finite values are refused, not indexed or propagated.
+        assert!(rotation_from_rot6d(&[1.0, 0.0, 0.0]).is_none());
+        assert!(rotation_from_rot6d(&[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0]).is_none());
+        assert!(rotation_from_rot6d(&[1.0, 0.0, f64::NAN, 0.0, 1.0, 0.0]).is_none());
+        assert!(rotation_from_rot6d(&[f64::INFINITY, 0.0, 0.0, 0.0, 1.0, 0.0]).is_none());
     }
 }

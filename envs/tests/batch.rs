@@ -33,9 +33,9 @@ fn bits(v: &[f64]) -> Vec<u64> {
 fn record(b: &BatchEnv) -> Vec<u64> {
     let mut out = Vec::new();
     for i in 0..b.num_envs() {
-        out.extend(bits(b.obs(i)));
-        let s = b.last_step(i);
-        out.extend([s.reward.to_bits(), s.terminated as u64, s.truncated as u64, s.success as u64, b.was_reset(i) as u64]);
+        out.extend(bits(b.obs(i).unwrap()));
+        let s = b.last_step(i).unwrap();
+        out.extend([s.reward.to_bits(), s.terminated as u64, s.truncated as u64, s.success as u64, b.was_reset(i).unwrap() as u64]);
     }
     out
 }
@@ -78,14 +78,14 @@ fn batch_equals_single_environments_bitwise_for_any_thread_count_with_next_step_
     for threads in [1, 2, 3] {
         let mut b = batch("lift", horizon, threads, AutoresetMode::NextStep);
         b.reset(&seeds).unwrap();
-        let obs0: Vec<u64> = (0..B).flat_map(|i| bits(b.obs(i))).collect();
+        let obs0: Vec<u64> = (0..B).flat_map(|i| bits(b.obs(i).unwrap())).collect();
         assert_eq!(obs0, first_obs, "reset observations, {threads} threads");
         for (t, a) in acts.iter().enumerate() {
             b.step(a).unwrap();
             assert_eq!(record(&b), expected[t], "step {t}, {threads} threads");
         }
         // Episode boundaries: 7 steps, one reset step, 7 steps, ... -> three episodes started.
-        assert_eq!(b.episode_index(0), 2);
+        assert_eq!(b.episode_index(0), Some(2));
     }
 }
 
@@ -104,22 +104,22 @@ fn same_step_autoreset_returns_the_reset_observation_and_keeps_the_final_one() {
         same.step(a).unwrap();
         for i in 0..B {
             let last = t + 1 == horizon;
-            assert_eq!(same.last_step(i), next.last_step(i));
-            assert_eq!(same.last_step(i).truncated, last);
-            assert_eq!(same.was_reset(i), last);
+            assert_eq!(same.last_step(i).unwrap(), next.last_step(i).unwrap());
+            assert_eq!(same.last_step(i).unwrap().truncated, last);
+            assert_eq!(same.was_reset(i).unwrap(), last);
             if last {
-                assert_eq!(bits(same.final_obs(i).unwrap()), bits(next.obs(i)));
+                assert_eq!(bits(same.final_obs(i).unwrap()), bits(next.obs(i).unwrap()));
             } else {
                 assert!(same.final_obs(i).is_none());
-                assert_eq!(bits(same.obs(i)), bits(next.obs(i)));
+                assert_eq!(bits(same.obs(i).unwrap()), bits(next.obs(i).unwrap()));
             }
         }
     }
     // The reset observation in SameStep mode is the one NextStep returns on the following call.
     next.step(&acts[0]).unwrap();
     for i in 0..B {
-        assert!(next.was_reset(i));
-        assert_eq!(bits(same.obs(i)), bits(next.obs(i)));
+        assert!(next.was_reset(i).unwrap());
+        assert_eq!(bits(same.obs(i).unwrap()), bits(next.obs(i).unwrap()));
         assert_eq!(same.episode_seeds()[i], next.episode_seeds()[i]);
     }
 }
@@ -129,7 +129,7 @@ fn bad_input_is_a_typed_error_and_nothing_steps() {
     let mut b = batch("lift", 400, 2, AutoresetMode::NextStep);
     assert!(matches!(b.step(&[0.0; B * 10]), Err(EnvError::CallOrder(_))));
     b.reset(&[0, 1, 2, 3, 4]).unwrap();
-    let before: Vec<u64> = (0..B).flat_map(|i| bits(b.obs(i))).collect();
+    let before: Vec<u64> = (0..B).flat_map(|i| bits(b.obs(i).unwrap())).collect();
     let hold: Vec<f64> = b.envs().flat_map(|e| e.current_target()).collect();
     assert!(matches!(b.step(&hold[..B * 10 - 1]), Err(EnvError::WrongLength { .. })));
     let mut bad = hold.clone();
@@ -142,11 +142,14 @@ fn bad_input_is_a_typed_error_and_nothing_steps() {
         other => panic!("expected NonFinite, got {other:?}"),
     }
     assert!(b.envs().all(|e| e.elapsed_steps() == 0), "no environment stepped");
-    let after: Vec<u64> = (0..B).flat_map(|i| bits(b.obs(i))).collect();
+    let after: Vec<u64> = (0..B).flat_map(|i| bits(b.obs(i).unwrap())).collect();
     assert_eq!(before, after);
     assert!(matches!(b.reset(&[0, 1]), Err(EnvError::WrongLength { .. })));
     b.step(&hold).unwrap();
     assert!(b.envs().all(|e| e.elapsed_steps() == 1));
+    // Out-of-range indices are answered with None, never a panic.
+    assert!(b.obs(B).is_none() && b.last_step(B).is_none() && b.was_reset(B).is_none());
+    assert!(b.final_obs(usize::MAX).is_none() && b.episode_index(B).is_none() && b.env(B).is_none());
     assert!(BatchEnv::<Env>::new(Vec::new(), 1, AutoresetMode::NextStep).is_err());
     assert!("sometimes".parse::<AutoresetMode>().is_err());
 }
@@ -161,6 +164,6 @@ fn masked_reset_resets_only_the_chosen_environments() {
     let steps: Vec<usize> = b.envs().map(|e| e.elapsed_steps()).collect();
     assert_eq!(steps, [1, 0, 1, 1, 1]);
     let mut single = Env::new(EnvConfig::new("lift")).unwrap();
-    assert_eq!(bits(b.obs(1)), bits(single.reset(99).unwrap()));
+    assert_eq!(bits(b.obs(1).unwrap()), bits(single.reset(99).unwrap()));
     assert_eq!(b.episode_seeds()[1], 99);
 }

@@ -290,5 +290,5 @@ fn bad_configuration_is_rejected() {
     let mut cfg = EnvConfig::new("lift");
     cfg.urdf = Some("/nonexistent/robot.urdf".into());
     let err = Env::new(cfg).err().unwrap();
-    assert!(err.to_string().contains("cannot read file"), "{err}");
+    assert!(matches!(&err, EnvError::FileNotFound { path, .. } if path == "/nonexistent/robot.urdf"), "{err}");
 }

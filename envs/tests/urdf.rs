@@ -22,7 +22,7 @@ fn panda_loads_with_its_published_limits() {
     assert!((robot.tcp_offset.translation.z - 0.1034).abs() < 1e-12);
     // Home posture of robosuite puts the TCP above the table, pointing down.
     let base = nalgebra::Isometry3::translation(-0.56, 0.0, 0.912);
-    let home = equigym_envs::tasks::lift::panda_home();
+    let home = equigym_envs::tasks::tabletop::panda_home();
     let tcp = robot.tcp_pose(&base, &home);
     assert!(tcp.translation.z > 0.9 && tcp.translation.z < 1.1, "{tcp:?}");
     let down = tcp.rotation * nalgebra::Vector3::z();

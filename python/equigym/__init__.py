@@ -8,46 +8,57 @@ Importing the package registers the gymnasium ids (gymnasium 1.x has no plugin e
 >>> envs = gymnasium.make_vec("EquiLift-v0", num_envs=16)   # B envs stepped in Rust
 """
 
-from equigym._core import (
-    TASK_IDS,
+from equigym._core import TASK_IDS, DiffusionPolicy, EnvSpec, Expert, __version__
+from equigym._core import Env as CoreEnv
+from equigym.assets import asset_path, policy_path, urdf_path
+from equigym.envs import ENV_IDS, EquiEnv, register_envs
+from equigym.errors import (
     EquigymError,
+    EquigymIOError,
+    InvalidInputError,
     InvalidStateError,
+    MissingFileError,
+    PolicyError,
     ResetNeeded,
     UrdfError,
-    __version__,
 )
-from equigym._core import Env as CoreEnv
-from equigym._core import DiffusionPolicy, Expert, PolicyError
-from equigym.envs import ENV_IDS, EquiEnv, register_envs
 from equigym.latent import LATENT_ENV_IDS, EquiLatentEnv, EquiLatentVectorEnv, register_latent_envs
 from equigym.rendering import save_gif
 from equigym.symmetry import Symmetry, measure_breaking
-from equigym.wrappers import SymmetryWrapper
 from equigym.vector import EquiVectorEnv
+from equigym.wrappers import SymmetryWrapper
 
 register_envs()
 register_latent_envs()
 
 __all__ = [
+    "ENV_IDS",
+    "LATENT_ENV_IDS",
+    "TASK_IDS",
     "CoreEnv",
     "DiffusionPolicy",
+    "EnvSpec",
+    "EquiEnv",
     "EquiLatentEnv",
     "EquiLatentVectorEnv",
-    "LATENT_ENV_IDS",
-    "PolicyError",
-    "ENV_IDS",
-    "EquiEnv",
     "EquiVectorEnv",
     "EquigymError",
+    "EquigymIOError",
     "Expert",
+    "InvalidInputError",
     "InvalidStateError",
+    "MissingFileError",
+    "PolicyError",
     "ResetNeeded",
-    "TASK_IDS",
-    "UrdfError",
-    "__version__",
-    "register_envs",
-    "save_gif",
     "Symmetry",
     "SymmetryWrapper",
+    "UrdfError",
+    "__version__",
+    "asset_path",
     "measure_breaking",
+    "policy_path",
+    "register_envs",
+    "register_latent_envs",
+    "save_gif",
+    "urdf_path",
 ]

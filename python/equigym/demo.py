@@ -1,6 +1,6 @@
 """Scripted-expert rollouts: success rate, throughput and pictures.
 
-    python -m equigym.demo --env EquiLift-v0 --episodes 50 --out runs/demo
+python -m equigym.demo --env EquiLift-v0 --episodes 50 --out runs/demo
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ import gymnasium
 import numpy as np
 
 import equigym
+from equigym._optional import require
 from equigym.rendering import save_gif
 
 
@@ -25,7 +26,7 @@ def run(env_id: str, episodes: int, out: Path, noise: float, seed: int) -> dict[
     for ep in range(episodes):
         env.reset(seed=seed + ep)
         expert.reset(core, seed + ep)
-        for t in range(core.horizon):
+        for t in range(core.horizon):  # noqa: B007 (t is the episode length below)
             _, _, terminated, truncated, info = env.step(expert.act(core))
             steps += 1
             if info["success"] or terminated or truncated:
@@ -46,9 +47,8 @@ def run(env_id: str, episodes: int, out: Path, noise: float, seed: int) -> dict[
         after += bool(info["success"])
         if after > 10:
             break
-    from PIL import Image
-
-    Image.fromarray(frames[-1]).save(out / f"{env_id}.png")
+    image = require("PIL.Image", "saving the demo's picture")
+    image.fromarray(frames[-1]).save(out / f"{env_id}.png")
     save_gif(frames, out / f"{env_id}.gif")
     env.close()
     return {
@@ -70,7 +70,9 @@ def main() -> None:
     print("|---|---:|---:|---:|")
     for env_id in args.env:
         r = run(env_id, args.episodes, args.out, args.noise, args.seed)
-        print(f"| {env_id} | {r['success_rate']:.3f} ({args.episodes} episodes) | {r['mean_length']:.1f} | {r['steps_per_s']:.0f} |")
+        print(
+            f"| {env_id} | {r['success_rate']:.3f} ({args.episodes} episodes) | {r['mean_length']:.1f} | {r['steps_per_s']:.0f} |"
+        )
     print(f"pictures: {args.out}/<env>.png and .gif")
 
 

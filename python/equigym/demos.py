@@ -20,17 +20,14 @@ from typing import Any
 import numpy as np
 
 from equigym import _core
+from equigym._optional import require
 from equigym.envs import ENV_IDS
 
 TASK_ENV_IDS = {task: env_id for env_id, task in ENV_IDS.items()}
 
 
 def _h5py() -> Any:
-    try:
-        import h5py
-    except ImportError as exc:
-        raise ImportError("recording demonstrations needs h5py: pip install 'equigym[train]'") from exc
-    return h5py
+    return require("h5py", "recording demonstrations")
 
 
 def record(
@@ -54,7 +51,7 @@ def record(
     h5py = _h5py()
     env = _core.Env(task, variant=variant)
     expert = _core.Expert(task, position_noise=position_noise, yaw_noise=yaw_noise)
-    fields = env.observation_layout
+    fields = env.spec.observation_layout
     max_attempts = max_attempts or 3 * episodes
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -68,7 +65,9 @@ def record(
     with h5py.File(out, "w") as f:
         data = f.create_group("data")
         env_kwargs = {"variant": variant} if variant else {}
-        data.attrs["env_args"] = json.dumps({"env_name": TASK_ENV_IDS[task], "type": "equigym", "env_kwargs": env_kwargs})
+        data.attrs["env_args"] = json.dumps(
+            {"env_name": TASK_ENV_IDS[task], "type": "equigym", "env_kwargs": env_kwargs}
+        )
         data.attrs["expert"] = json.dumps({"position_noise": position_noise, "yaw_noise": yaw_noise})
         while kept < episodes and tried < max_attempts:
             ep_seed = seed + tried
@@ -94,7 +93,9 @@ def record(
             g.attrs["success"] = success
             og = g.create_group("obs")
             for field in fields:
-                og.create_dataset(field["name"], data=obs_arr[:, field["start"] : field["start"] + field["len"]].astype(np.float32))
+                og.create_dataset(
+                    field["name"], data=obs_arr[:, field["start"] : field["start"] + field["len"]].astype(np.float32)
+                )
             g.create_dataset("actions", data=np.asarray(actions))
             g.create_dataset("rewards", data=np.asarray(rewards))
             dones = np.zeros(len(actions), dtype=np.int64)
@@ -107,7 +108,13 @@ def record(
         data.attrs["total"] = int(sum(lengths))
     if bar is not None:
         bar.close()
-    return {"task": task, "kept": kept, "tried": tried, "mean_length": float(np.mean(lengths)) if lengths else 0.0, "path": str(out)}
+    return {
+        "task": task,
+        "kept": kept,
+        "tried": tried,
+        "mean_length": float(np.mean(lengths)) if lengths else 0.0,
+        "path": str(out),
+    }
 
 
 def load(path: str | Path) -> dict[str, Any]:
@@ -123,7 +130,14 @@ def load(path: str | Path) -> dict[str, Any]:
         for name in sorted(data.keys(), key=lambda k: int(k.split("_")[1])):
             g = data[name]
             obs = np.concatenate([np.asarray(g["obs"][k]) for k in order], axis=1)
-            demos.append({"obs": obs, "actions": np.asarray(g["actions"]), "rewards": np.asarray(g["rewards"]), "seed": int(g.attrs["seed"])})
+            demos.append(
+                {
+                    "obs": obs,
+                    "actions": np.asarray(g["actions"]),
+                    "rewards": np.asarray(g["rewards"]),
+                    "seed": int(g.attrs["seed"]),
+                }
+            )
     return {"env_args": env_args, "task": task, "demos": demos}
 
 
@@ -139,8 +153,14 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--keep-failures", action="store_true")
     a = p.parse_args(argv)
     summary = record(
-        a.task, a.episodes, a.out, variant=a.variant, position_noise=a.position_noise, yaw_noise=a.yaw_noise,
-        seed=a.seed, keep_failures=a.keep_failures,
+        a.task,
+        a.episodes,
+        a.out,
+        variant=a.variant,
+        position_noise=a.position_noise,
+        yaw_noise=a.yaw_noise,
+        seed=a.seed,
+        keep_failures=a.keep_failures,
     )
     print(json.dumps(summary))
 

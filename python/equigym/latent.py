@@ -22,8 +22,10 @@ from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
 from equigym import _core
-from equigym.envs import physics_options
-from equigym.vector import NativeVectorEnv, _mode_name, check_vector_args
+from equigym.assets import policy_path
+from equigym.envs import OPTIONS_DOC, check_seed
+from equigym.errors import InvalidInputError
+from equigym.vector import NativeVectorEnv, _mode_name, check_vector_args, vector_horizon
 
 #: gymnasium id -> task id.
 LATENT_ENV_IDS: dict[str, str] = {
@@ -32,19 +34,10 @@ LATENT_ENV_IDS: dict[str, str] = {
     "EquiSquare-Latent-v0": "square",
 }
 
-#: Where the shipped policies live (``assets/edp/<task>.safetensors`` in the repository).
-ASSET_DIR = Path(__file__).resolve().parents[2] / "assets" / "edp"
-
 
 def shipped_policy(task: str) -> Path:
-    """Path of the EDP shipped for ``task``; FileNotFoundError with a hint when absent."""
-    path = ASSET_DIR / f"{task}.safetensors"
-    if not path.exists():
-        raise FileNotFoundError(
-            f"no shipped diffusion policy for '{task}' at {path}; train one with "
-            f"`python -m baselines.edp train` and pass policy=<file>"
-        )
-    return path
+    """Path of the EDP shipped for ``task`` (:func:`equigym.assets.policy_path`)."""
+    return policy_path(task)
 
 
 def _policy_arg(task: str, policy: Any) -> Any:
@@ -55,7 +48,9 @@ def _policy_arg(task: str, policy: Any) -> Any:
 
 
 class EquiLatentEnv(gymnasium.Env):
-    """A task whose action is the latent noise of an (equivariant) diffusion policy.
+    (
+        """A task whose action is the latent noise of an (equivariant) diffusion policy
+    (``gymnasium.make("EquiLift-Latent-v0")``).
 
     Args:
         task: task id.
@@ -63,10 +58,18 @@ class EquiLatentEnv(gymnasium.Env):
             :class:`equigym._core.DiffusionPolicy` (shared between envs); default: the shipped one.
         bound: latent bound (actions are clipped to [-bound, bound]).
         ddim_steps: denoising steps (default: the policy's, 5).
-        Other keyword arguments (``joint_limits``, ``controller``, ``variant``, ``horizon``,
-        ``ranges``, ``physics``, ``init_joint_noise``, ``urdf``) configure the task as in
-        :class:`EquiEnv`.
+        **options: the environment options of :class:`equigym.EquiEnv` (``reward`` must stay sparse:
+            the latent env returns success - 1 per primitive step):
     """
+        + OPTIONS_DOC
+        + """
+    Pickling and ``copy.deepcopy`` carry the policy (its bytes) and the full simulator state.
+
+    ## Version History
+    * v0: Initial release (C8-equivariant EDPs shipped for Lift, Stack D1 and Square D2;
+      chunks of 4 absolute actions; deterministic DDIM with 5 steps).
+    """
+    )
 
     metadata = {"render_modes": [], "render_fps": 5}
 
@@ -76,20 +79,22 @@ class EquiLatentEnv(gymnasium.Env):
         policy: Any = None,
         bound: float = 1.5,
         ddim_steps: int | None = None,
-        controller: str = "joint",
-        **env_kwargs: Any,
+        **options: Any,
     ) -> None:
-        env_kwargs["physics"] = physics_options(env_kwargs.get("physics"), controller)
         policy = _policy_arg(task, policy)
-        self.core = _core.LatentEnv(task, policy, bound=bound, ddim_steps=ddim_steps, **env_kwargs)
+        self.core = _core.LatentEnv(task, policy, bound=bound, ddim_steps=ddim_steps, **options)
         dim = self.core.latent_dim
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(self.core.observation_dim,), dtype=np.float32)
         self.action_space = spaces.Box(-bound, bound, shape=(dim,), dtype=np.float32)
         self.chunk_len = self.core.chunk_len
 
+    @property
+    def horizon(self) -> int:
+        """Episode length in primitive control steps."""
+        return self.core.horizon
+
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
-            raise ValueError(f"seed must be None or a non-negative integer, got {seed!r}")
+        check_seed(seed)
         super().reset(seed=seed)
         episode_seed = int(seed) if seed is not None else int(self.np_random.integers(0, 2**63 - 1))
         obs = self.core.reset(episode_seed)
@@ -100,7 +105,7 @@ class EquiLatentEnv(gymnasium.Env):
         if w.dtype.kind not in "fiu":
             raise TypeError(f"latent action must be numeric, got dtype {w.dtype}")
         if w.shape != self.action_space.shape:
-            raise ValueError(f"latent action must have shape {self.action_space.shape}, got {w.shape}")
+            raise InvalidInputError(f"latent action must have shape {self.action_space.shape}, got {w.shape}")
         obs, reward, terminated, truncated, info = self.core.step(np.ascontiguousarray(w, dtype=np.float64))
         return obs.astype(np.float32), float(reward), bool(terminated), bool(truncated), info
 
@@ -126,9 +131,13 @@ class EquiLatentVectorEnv(NativeVectorEnv):
     seeding and ``reset_mask`` are those of :class:`equigym.vector.EquiVectorEnv`;
     ``info["executed"]`` gives the primitive steps each sub-environment ran.
 
-    Args: ``task``, ``num_envs``, ``threads`` (0: one per core), ``autoreset_mode``, and the
-    options of :class:`EquiLatentEnv` (``policy``, ``bound``, ``ddim_steps``, ``controller``,
-    ``joint_limits``, ...). ``max_episode_steps`` caps the horizon (primitive steps).
+    Args: ``task``, ``num_envs``, ``threads`` (0: one per core), ``autoreset_mode``, the
+    arguments of :class:`EquiLatentEnv` (``policy``, ``bound``, ``ddim_steps``) and the
+    environment options (``controller``, ``joint_limits``, ...). ``max_episode_steps`` caps the
+    horizon (primitive steps).
+
+    ## Version History
+    * v0: Initial release.
     """
 
     def __init__(
@@ -143,32 +152,37 @@ class EquiLatentVectorEnv(NativeVectorEnv):
         autoreset_mode: Any = "next_step",
         max_episode_steps: int | None = None,
         render_mode: str | None = None,
-        controller: str = "joint",
-        **env_kwargs: Any,
+        **options: Any,
     ) -> None:
         if render_mode is not None:
-            raise ValueError("latent vector environments do not render")
+            raise InvalidInputError("latent vector environments do not render")
         check_vector_args(num_envs, threads)
         mode = _mode_name(autoreset_mode)
-        env_kwargs["physics"] = physics_options(env_kwargs.get("physics"), controller)
-        if max_episode_steps is not None:
-            h = env_kwargs.get("horizon")
-            env_kwargs["horizon"] = max_episode_steps if h is None else min(h, max_episode_steps)
+        vector_horizon(options, max_episode_steps)
         policy = _policy_arg(task, policy)
         self.core = _core.LatentVecEnv(
-            task, policy, int(num_envs), threads=int(threads), autoreset_mode=mode, bound=bound, ddim_steps=ddim_steps, **env_kwargs
+            task,
+            policy,
+            int(num_envs),
+            threads=int(threads),
+            autoreset_mode=mode,
+            bound=bound,
+            ddim_steps=ddim_steps,
+            **options,
         )
         self._init_batch(num_envs, mode)
         self.chunk_len = self.core.chunk_len
         dim = self.core.latent_dim
-        self.single_observation_space = spaces.Box(-np.inf, np.inf, shape=(self.core.observation_dim,), dtype=np.float32)
+        self.single_observation_space = spaces.Box(
+            -np.inf, np.inf, shape=(self.core.observation_dim,), dtype=np.float32
+        )
         self.single_action_space = spaces.Box(-bound, bound, shape=(dim,), dtype=np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
 
     def _to_core(self, a: np.ndarray) -> np.ndarray:
         if a.shape != self.action_space.shape:
-            raise ValueError(f"latent actions must have shape {self.action_space.shape}, got {a.shape}")
+            raise InvalidInputError(f"latent actions must have shape {self.action_space.shape}, got {a.shape}")
         return np.ascontiguousarray(a, dtype=np.float64)
 
     def _step_info(self, infos: dict[str, Any]) -> None:

@@ -16,14 +16,15 @@ from typing import Any
 
 import numpy as np
 
-try:
-    import torch
-    from stable_baselines3.common.buffers import ReplayBuffer
-    from stable_baselines3.common.type_aliases import ReplayBufferSamples
-except ImportError as exc:  # pragma: no cover - exercised without SB3 installed
-    raise ImportError("equigym.replay needs stable-baselines3: pip install 'equigym[test]' or stable-baselines3") from exc
+from equigym._optional import require
 
-from equigym.symmetry import Symmetry
+torch = require("torch", "equigym.replay")
+require("stable_baselines3", "equigym.replay")
+
+from stable_baselines3.common.buffers import ReplayBuffer  # noqa: E402
+from stable_baselines3.common.type_aliases import ReplayBufferSamples  # noqa: E402
+
+from equigym.symmetry import Symmetry  # noqa: E402
 
 
 class SymmetricReplayBuffer(ReplayBuffer):

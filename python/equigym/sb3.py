@@ -18,15 +18,17 @@ that ends to be reset within the same step, so the adapter runs the Rust batch w
 - ``infos[i]["is_success"]`` carries the task's success flag (every step), which SB3 logs.
 
 Stable-Baselines3 is optional for equigym; this module needs it installed
-(``pip install stable-baselines3``).
+(``pip install 'equigym[train]'``).
 """
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
+from equigym._optional import require
 from equigym.vector import NativeVectorEnv
 
 try:
@@ -66,10 +68,7 @@ if _SB3VecEnv is None:
         """Placeholder: Stable-Baselines3 is not installed."""
 
         def __init__(self, *args: Any, **kwargs: Any) -> None:
-            raise ImportError(
-                "equigym.sb3.EquiVecEnv needs Stable-Baselines3, which is not installed: "
-                "pip install stable-baselines3"
-            ) from _SB3_IMPORT_ERROR
+            require("stable_baselines3", "equigym.sb3.EquiVecEnv")
 
 else:
 
@@ -146,7 +145,9 @@ else:
                 raise ValueError("equigym sub-environments share their attributes; set them for all indices")
             setattr(self.venv, attr_name, value)
 
-        def env_method(self, method_name: str, *method_args: Any, indices: Any = None, **method_kwargs: Any) -> list[Any]:
+        def env_method(
+            self, method_name: str, *method_args: Any, indices: Any = None, **method_kwargs: Any
+        ) -> list[Any]:
             result = getattr(self.venv, method_name)(*method_args, **method_kwargs)
             return [result for _ in self._indices(indices)]
 
@@ -155,4 +156,3 @@ else:
 
         def get_images(self) -> Sequence[np.ndarray | None]:
             return [None for _ in range(self.num_envs)]
-

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from equigym._optional import require
 from equigym.symmetry import measure_breaking, summarize
 
 #: (task, variant) settings measured by default: every task and every reset range.
@@ -31,7 +32,9 @@ SETTINGS: list[tuple[str, str | None]] = [
 ]
 
 
-def run(settings: list[tuple[str, str | None]], episodes: int, group_order: int, progress: bool = True) -> list[dict[str, Any]]:
+def run(
+    settings: list[tuple[str, str | None]], episodes: int, group_order: int, progress: bool = True
+) -> list[dict[str, Any]]:
     reports = []
     # (joint limits, Cartesian control): the shipped setting, limits off, and each with the
     # Cartesian controller, which separates the joint limits from joint-space interpolation.
@@ -46,7 +49,12 @@ def run(settings: list[tuple[str, str | None]], episodes: int, group_order: int,
     for task, variant, limits, cartesian in iterator:
         t0 = time.perf_counter()
         report = measure_breaking(
-            task, variant=variant, joint_limits=limits, cartesian_control=cartesian, episodes=episodes, group_order=group_order
+            task,
+            variant=variant,
+            joint_limits=limits,
+            cartesian_control=cartesian,
+            episodes=episodes,
+            group_order=group_order,
         )
         report["seconds"] = time.perf_counter() - t0
         reports.append(report)
@@ -93,13 +101,16 @@ def markdown(reports: list[dict[str, Any]], command: str) -> str:
             rate = rep["successes"] / rep["demos"] if rep["demos"] else float("nan")
             cells.append(f"{_fmt(rate, '.2f')} / {1e3 * inv['hand_error_mean']:.1f}")
         ctrl = "Cartesian" if c["cartesian_control"] else "joint"
-        lines.append(f"| {c['task']} | {c['variant'] or 'default'} | {'on' if c['joint_limits'] else 'off'} | {ctrl} | " + " | ".join(cells) + " |")
+        lines.append(
+            f"| {c['task']} | {c['variant'] or 'default'} | {'on' if c['joint_limits'] else 'off'} | {ctrl} | "
+            + " | ".join(cells)
+            + " |"
+        )
     return "\n".join(lines) + "\n"
 
 
 def plot(reports: list[dict[str, Any]], path: Path) -> None:
-    import matplotlib
-
+    matplotlib = require("matplotlib", "plotting the symmetry report")
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -107,10 +118,16 @@ def plot(reports: list[dict[str, Any]], path: Path) -> None:
     for r in reports:
         c = r["config"]
         ctrl = "cart" if c["cartesian_control"] else "joint"
-        label = f"{c['task']} {c['variant'] or ''} limits {'on' if c['joint_limits'] else 'off'} {ctrl}".replace("  ", " ")
-        style = ("-" if c["joint_limits"] else "--") if not c["cartesian_control"] else (":" if c["joint_limits"] else "-.")
+        label = f"{c['task']} {c['variant'] or ''} limits {'on' if c['joint_limits'] else 'off'} {ctrl}".replace(
+            "  ", " "
+        )
+        style = (
+            ("-" if c["joint_limits"] else "--") if not c["cartesian_control"] else (":" if c["joint_limits"] else "-.")
+        )
         angles = [row["angle_deg"] for row in r["invariance"]]
-        axes[0].plot(angles, [1e3 * row["hand_error_mean"] + 1e-4 for row in r["invariance"]], style, marker="o", label=label)
+        axes[0].plot(
+            angles, [1e3 * row["hand_error_mean"] + 1e-4 for row in r["invariance"]], style, marker="o", label=label
+        )
         rates = [row["successes"] / row["demos"] if row["demos"] else float("nan") for row in r["replay"]]
         axes[1].plot(angles, rates, style, marker="o", label=label)
     axes[0].set_yscale("log")

@@ -18,8 +18,9 @@ Auto-reset (``metadata["autoreset_mode"]``) follows gymnasium 1.x:
   reset observation; the last observation of the ended episode is in ``info["final_obs"]``
   (masked by ``info["_final_obs"]``) and its step info in ``info["final_info"]``.
 
-Episodes are truncated at the horizon (400 control steps, or ``horizon`` / ``max_episode_steps``)
-inside the vector environment; gymnasium's ``TimeLimit`` does not wrap vector environments.
+Episodes are truncated at the horizon (400 control steps, or the ``horizon`` option, or
+``max_episode_steps`` when smaller) inside the vector environment; gymnasium's ``TimeLimit``
+does not wrap vector environments.
 
 Seeds: ``reset(seed=s)`` seeds sub-environment ``i`` with ``s + i`` (as gymnasium's
 ``SyncVectorEnv`` does), ``reset(seed=[s0, s1, ...])`` with ``s_i``; the first episode then
@@ -30,7 +31,8 @@ resets draw their episode seeds from a per-sub-environment stream seeded with ``
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import gymnasium
 import numpy as np
@@ -39,7 +41,8 @@ from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from equigym import _core
-from equigym.envs import _ACTION_MODES, physics_options
+from equigym.envs import ACTION_MODES, OPTIONS_DOC
+from equigym.errors import InvalidInputError
 
 try:  # gymnasium >= 1.1
     from gymnasium.vector import AutoresetMode
@@ -58,7 +61,9 @@ def _mode_name(mode: Any) -> str:
         for name, value in _MODES.items():
             if key in (name, value.lower()):
                 return name
-    raise ValueError(f"autoreset_mode must be 'next_step' or 'same_step' (or a gymnasium AutoresetMode), got {mode!r}")
+    raise InvalidInputError(
+        f"autoreset_mode must be 'next_step' or 'same_step' (or a gymnasium AutoresetMode), got {mode!r}"
+    )
 
 
 class NativeVectorEnv(VectorEnv):
@@ -88,6 +93,7 @@ class NativeVectorEnv(VectorEnv):
 
     @property
     def horizon(self) -> int:
+        """Episode length of every sub-environment, in (primitive) control steps."""
         return self.core.horizon
 
     def episode_seeds(self) -> np.ndarray:
@@ -100,7 +106,7 @@ class NativeVectorEnv(VectorEnv):
             seeds = self.np_random.integers(0, 2**63 - 1, size=n, dtype=np.int64).tolist()
         elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
             if seed < 0:
-                raise ValueError(f"seed must be None, a non-negative integer or a list of them, got {seed!r}")
+                raise InvalidInputError(f"seed must be None, a non-negative integer or a list of them, got {seed!r}")
             super().reset(seed=int(seed))
             seeds = [int(seed) + i for i in range(n)]
         else:
@@ -111,15 +117,17 @@ class NativeVectorEnv(VectorEnv):
             if len(seeds) != n or any(
                 isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 0 for s in seeds
             ):
-                raise ValueError(f"seed must be None, a non-negative integer or a list of {n} of them, got {seed!r}")
+                raise InvalidInputError(
+                    f"seed must be None, a non-negative integer or a list of {n} of them, got {seed!r}"
+                )
             seeds = [int(s) for s in seeds]
         mask = None
         if options and "reset_mask" in options:
             mask = np.asarray(options["reset_mask"])
             if mask.shape != (n,) or mask.dtype != np.bool_ or not mask.any():
-                raise ValueError(f"options['reset_mask'] must be a bool array of shape ({n},) with a True value")
+                raise InvalidInputError(f"options['reset_mask'] must be a bool array of shape ({n},) with a True value")
             if self._needs_reset and not mask.all():
-                raise ValueError("the first reset must reset every sub-environment (no reset_mask)")
+                raise InvalidInputError("the first reset must reset every sub-environment (no reset_mask)")
             mask = mask.tolist()
         obs = self.core.reset(seeds, mask)
         self._needs_reset = False
@@ -142,7 +150,12 @@ class NativeVectorEnv(VectorEnv):
         a = self._to_core(a)
         # NaN / infinity is rejected in Rust (ValueError naming the sub-environment) before anything steps.
         obs, rewards, terminated, truncated, success, reset, final_obs = self.core.step(a)
-        infos: dict[str, Any] = {"success": success, "_success": self._all, "is_success": success, "_is_success": self._all}
+        infos: dict[str, Any] = {
+            "success": success,
+            "_success": self._all,
+            "is_success": success,
+            "_is_success": self._all,
+        }
         self._step_info(infos)
         if reset.any():
             infos["episode_seed"] = self.core.episode_seeds()
@@ -151,7 +164,12 @@ class NativeVectorEnv(VectorEnv):
                 # same_step: the ended episodes' last observations and step infos.
                 infos["final_obs"] = final_obs
                 infos["_final_obs"] = reset
-                infos["final_info"] = {"success": success, "_success": reset, "is_success": success, "_is_success": reset}
+                infos["final_info"] = {
+                    "success": success,
+                    "_success": reset,
+                    "is_success": success,
+                    "_is_success": reset,
+                }
                 infos["_final_info"] = reset
         return obs, rewards, terminated, truncated, infos
 
@@ -159,26 +177,40 @@ class NativeVectorEnv(VectorEnv):
         pass
 
 
+def vector_horizon(options: dict[str, Any], max_episode_steps: int | None) -> None:
+    """Fold ``max_episode_steps`` (what ``gymnasium.make_vec`` passes) into the ``horizon``
+    option: the smaller of the two applies."""
+    if max_episode_steps is not None:
+        h = options.get("horizon")
+        options["horizon"] = max_episode_steps if h is None else min(h, max_episode_steps)
+
+
 def check_vector_args(num_envs: Any, threads: Any) -> None:
     if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-        raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        raise InvalidInputError(f"num_envs must be a positive integer, got {num_envs!r}")
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
-        raise ValueError(f"threads must be a non-negative integer (0: one per core), got {threads!r}")
+        raise InvalidInputError(f"threads must be a non-negative integer (0: one per core), got {threads!r}")
 
 
 class EquiVectorEnv(NativeVectorEnv):
-    """``num_envs`` copies of one equigym task as a :class:`gymnasium.vector.VectorEnv`.
+    (
+        """``num_envs`` copies of one equigym task as a :class:`gymnasium.vector.VectorEnv`.
 
     Args:
         task: Rust task id (``"lift"``, ``"stack"``, ``"square"``).
         num_envs: number of sub-environments B.
         threads: size of the Rust thread pool (0: one thread per core).
         autoreset_mode: ``"next_step"`` (default) or ``"same_step"``, or a ``gymnasium.vector.AutoresetMode``.
-        max_episode_steps: truncation horizon (``gymnasium.make_vec`` passes the registered 400);
-            the smaller of this and ``horizon`` applies.
-        reward, action_mode, joint_limits, urdf, init_joint_noise, horizon, physics, ranges, variant:
-            as for :class:`equigym.EquiEnv`.
+        max_episode_steps: truncation horizon; the smaller of this and ``horizon`` applies.
+        action_mode: as for :class:`equigym.EquiEnv`.
+        **options: the environment options of :class:`equigym.EquiEnv`:
     """
+        + OPTIONS_DOC
+        + """
+    ## Version History
+    * v0: Initial release.
+    """
+    )
 
     def __init__(
         self,
@@ -189,53 +221,32 @@ class EquiVectorEnv(NativeVectorEnv):
         autoreset_mode: Any = "next_step",
         max_episode_steps: int | None = None,
         render_mode: str | None = None,
-        reward: str = "sparse",
         action_mode: str = "absolute",
-        joint_limits: bool = True,
-        urdf: str | None = None,
-        init_joint_noise: float = 0.02,
-        horizon: int | None = None,
-        physics: dict[str, float] | None = None,
-        ranges: dict[str, tuple[float, float]] | None = None,
-        variant: str | None = None,
-        controller: str = "joint",
+        **options: Any,
     ) -> None:
-        physics = physics_options(physics, controller)
         if render_mode is not None:
-            raise ValueError("EquiVectorEnv does not render; use gymnasium.make(id, render_mode='rgb_array') per env")
-        if action_mode not in _ACTION_MODES:
-            raise ValueError(f"action_mode must be one of {_ACTION_MODES}, got {action_mode!r}")
+            raise InvalidInputError(
+                "EquiVectorEnv does not render; use gymnasium.make(id, render_mode='rgb_array') per env"
+            )
+        if action_mode not in ACTION_MODES:
+            raise InvalidInputError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
         check_vector_args(num_envs, threads)
         mode = _mode_name(autoreset_mode)
-        if max_episode_steps is not None:
-            horizon = max_episode_steps if horizon is None else min(horizon, max_episode_steps)
-        self.core = _core.VecEnv(
-            task,
-            int(num_envs),
-            threads=int(threads),
-            autoreset_mode=mode,
-            reward=reward,
-            urdf=None if urdf is None else str(urdf),
-            joint_limits=joint_limits,
-            init_joint_noise=init_joint_noise,
-            horizon=horizon,
-            physics=physics,
-            ranges=ranges,
-            variant=variant,
-        )
+        vector_horizon(options, max_episode_steps)
+        self.core = _core.VecEnv(task, int(num_envs), threads=int(threads), autoreset_mode=mode, **options)
         self._init_batch(num_envs, mode)
         self.action_mode = action_mode
-        self._low = self.core.action_low
-        self._high = self.core.action_high
+        spec = self.core.spec
+        self._low = spec.action_low
+        self._high = spec.action_high
         self._scale = 0.5 * (self._high - self._low)
-        dim = self.core.observation_dim
-        self.single_observation_space = spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float32)
+        self.single_observation_space = spaces.Box(-np.inf, np.inf, shape=(spec.observation_dim,), dtype=np.float32)
         if action_mode == "absolute":
             self.single_action_space = spaces.Box(
                 self._low.astype(np.float32), self._high.astype(np.float32), dtype=np.float32
             )
         else:
-            self.single_action_space = spaces.Box(-1.0, 1.0, shape=(10,), dtype=np.float32)
+            self.single_action_space = spaces.Box(-1.0, 1.0, shape=(spec.action_dim,), dtype=np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
 
@@ -243,20 +254,20 @@ class EquiVectorEnv(NativeVectorEnv):
     @property
     def observation_fields(self) -> dict[str, slice]:
         """Observation field name -> slice (of one row)."""
-        return {f["name"]: slice(f["start"], f["start"] + f["len"]) for f in self.core.observation_layout}
+        return {f["name"]: slice(f["start"], f["start"] + f["len"]) for f in self.core.spec.observation_layout}
 
     @property
     def observation_layout(self) -> list[dict[str, Any]]:
-        return self.core.observation_layout
+        return self.core.spec.observation_layout
 
     @property
     def action_layout(self) -> list[dict[str, Any]]:
-        return self.core.action_layout
+        return self.core.spec.action_layout
 
     # -- gymnasium API ---------------------------------------------------------------------
     def _to_core(self, a: np.ndarray) -> np.ndarray:
-        if a.shape != (self.num_envs, 10):
-            raise ValueError(f"actions must have shape ({self.num_envs}, 10), got {a.shape}")
+        if a.shape != self.action_space.shape:
+            raise InvalidInputError(f"actions must have shape {self.action_space.shape}, got {a.shape}")
         if self.action_mode == "normalized":
             return self._low + (np.clip(a, -1.0, 1.0) + 1.0) * self._scale
         return np.ascontiguousarray(a, dtype=np.float64)
@@ -266,4 +277,3 @@ class EquiVectorEnv(NativeVectorEnv):
         """Map absolute actions to the normalized [-1, 1] space."""
         a = np.asarray(absolute, dtype=np.float64)
         return (2.0 * (a - self._low) / (self._high - self._low) - 1.0).astype(np.float32)
-

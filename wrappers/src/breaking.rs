@@ -15,7 +15,7 @@
 
 use equigym_envs::experts::{make_expert, ExpertOptions};
 use equigym_envs::math::from_pose;
-use equigym_envs::rng::EpisodeRng;
+use equigym_envs::rng::{EpisodeRng, SeedUse};
 use equigym_envs::{Env, EnvConfig, EnvError, RewardKind};
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
@@ -212,7 +212,7 @@ pub fn measure(config: &BreakingConfig) -> Result<BreakingReport> {
     }
 
     // Transition invariance on sampled (state, action sequence) pairs.
-    let mut rng = EpisodeRng::from_seed(config.seed ^ 0x5eed);
+    let mut rng = EpisodeRng::for_use(config.seed, SeedUse::SymmetryProbe);
     let mut sums = vec![[0.0f64; 9]; elements.len()];
     let mut counts = vec![0usize; elements.len()];
     for demo in &demos {

@@ -26,6 +26,11 @@ struct Dense {
     n_out: usize,
 }
 
+/// Most layers a policy file may declare (the shipped ones have 3 to 5).
+const MAX_LAYERS: usize = 1024;
+/// Longest action chunk a policy file may declare (the shipped ones have 4).
+const MAX_CHUNK_LEN: usize = 4096;
+
 /// A loaded diffusion policy.
 #[derive(Debug)]
 pub struct DiffusionPolicy {
@@ -103,12 +108,17 @@ impl DiffusionPolicy {
     /// Load a policy file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
         let p = path.as_ref();
+        Self::from_bytes(&Self::read_file(p)?, &p.display().to_string())
+    }
+
+    /// The bytes of a policy file (typed errors for a missing or unreadable file).
+    pub fn read_file(path: impl AsRef<Path>) -> Result<Vec<u8>> {
+        let p = path.as_ref();
         let name = p.display().to_string();
-        let bytes = std::fs::read(p).map_err(|e| match e.kind() {
+        std::fs::read(p).map_err(|e| match e.kind() {
             std::io::ErrorKind::NotFound => Error::PolicyNotFound(name.clone()),
             _ => bad(&name, format!("cannot read: {e}")),
-        })?;
-        Self::from_bytes(&bytes, &name)
+        })
     }
 
     /// Load from the bytes of a policy file (`origin` names it in errors).
@@ -143,6 +153,13 @@ impl DiffusionPolicy {
         }
         if num_layers == 0 || chunk_len == 0 || steps == 0 {
             return Err(bad(origin, "empty network, chunk or schedule"));
+        }
+        // Counts come from the file: bound them before they size allocations or products.
+        if num_layers > MAX_LAYERS || chunk_len > MAX_CHUNK_LEN {
+            return Err(bad(
+                origin,
+                format!("{num_layers} layers or a chunk of {chunk_len} exceed the limits ({MAX_LAYERS}, {MAX_CHUNK_LEN})"),
+            ));
         }
         let mut layers = Vec::with_capacity(num_layers);
         for i in 0..num_layers {

@@ -54,6 +54,13 @@ impl LatentEnv {
         ddim_steps: usize,
     ) -> Result<Self> {
         policy.check_layout(env.task().id(), env.observation_layout())?;
+        if env.config().reward != equigym_envs::RewardKind::Sparse {
+            return Err(equigym_envs::EnvError::InvalidConfig(
+                "latent environments return their own reward (success - 1 per primitive step); reward must be 'sparse'"
+                    .into(),
+            )
+            .into());
+        }
         if !(bound.is_finite() && bound > 0.0) {
             return Err(equigym_envs::EnvError::InvalidConfig(format!(
                 "latent bound must be positive, got {bound}"
@@ -86,6 +93,9 @@ impl LatentEnv {
     }
     pub fn policy(&self) -> &Arc<DiffusionPolicy> {
         &self.policy
+    }
+    pub fn ddim_steps(&self) -> usize {
+        self.ddim_steps
     }
     pub fn bound(&self) -> f64 {
         self.bound

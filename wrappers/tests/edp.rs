@@ -109,7 +109,9 @@ fn bad_files_are_typed_errors() {
 
 #[test]
 fn batched_latent_steps_equal_single_ones() {
-    let policy = std::sync::Arc::new(DiffusionPolicy::from_bytes(&constant_policy(0.1, "equigym-edp-1"), "t").unwrap());
+    // A policy whose chunks depend on the observation: each row must be denoised from its own
+    // environment's observation (a constant policy would hide rows swapped or shared).
+    let policy = std::sync::Arc::new(DiffusionPolicy::from_bytes(&random_policy(), "t").unwrap());
     let make = || LatentEnv::new(Env::new(EnvConfig::new("lift")).unwrap(), policy.clone(), 1.5, 5).unwrap();
     let mut batch: Vec<LatentEnv> = (0..3).map(|_| make()).collect();
     let mut single: Vec<LatentEnv> = (0..3).map(|_| make()).collect();
@@ -117,8 +119,14 @@ fn batched_latent_steps_equal_single_ones() {
         b.reset(k as u64).unwrap();
         s.reset(k as u64).unwrap();
     }
-    let w: Vec<f64> = (0..3 * CHUNK).map(|i| ((i as f64) * 0.37).sin()).collect();
+    // The same latent for every row: only the observations tell the rows apart.
+    let w: Vec<f64> = (0..3 * CHUNK).map(|i| ((i % CHUNK) as f64 * 0.37).sin()).collect();
+    let decoded: Vec<Vec<f64>> = single.iter_mut().map(|s| s.decode(&w[..CHUNK]).unwrap()).collect();
+    assert!(decoded[0] != decoded[1] && decoded[1] != decoded[2], "the policy must depend on the observation");
     let steps = step_batch(&mut batch, &w).unwrap();
+    for (k, b) in batch.iter().enumerate() {
+        assert_eq!(b.last_chunk(), &decoded[k][..], "env {k} ran another row's chunk");
+    }
     for (k, s) in single.iter_mut().enumerate() {
         let r = s.step(&w[k * CHUNK..(k + 1) * CHUNK]).unwrap();
         assert_eq!(r, steps[k]);
@@ -165,18 +173,18 @@ fn latent_vector_env_equals_single_envs_for_any_thread_count() {
         for (t, want_t) in want.iter().enumerate() {
             batch.step(&latents(t)).unwrap();
             for (k, (w, obs)) in want_t.iter().enumerate() {
-                let got = batch.last_step(k);
+                let got = batch.last_step(k).unwrap();
                 let want = (w.reward, w.terminated, w.truncated, w.success);
                 assert_eq!((got.reward, got.terminated, got.truncated, got.success), want, "threads {threads}, step {t}, env {k}");
-                assert_eq!(batch.obs(k), &obs[..], "threads {threads}, step {t}, env {k}");
+                assert_eq!(batch.obs(k).unwrap(), &obs[..], "threads {threads}, step {t}, env {k}");
             }
         }
         for k in 0..n {
             assert_eq!(batch.env(k).unwrap().env().get_state().unwrap(), final_states[k], "threads {threads}, env {k}");
-            assert!(batch.last_step(k).truncated);
+            assert!(batch.last_step(k).unwrap().truncated);
         }
         // The next step auto-resets every environment from its seed stream.
         batch.step(&latents(9)).unwrap();
-        assert!((0..n).all(|k| batch.was_reset(k)));
+        assert!((0..n).all(|k| batch.was_reset(k).unwrap()));
     }
 }

@@ -12,7 +12,7 @@ use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use crate::env::Env;
 use crate::error::{EnvError, Result};
 use crate::math::{from_pose, rot6d};
-use crate::rng::EpisodeRng;
+use crate::rng::{EpisodeRng, SeedUse};
 
 /// A policy that maps the environment's current (privileged) state to an action.
 pub trait Expert: Send + Sync {
@@ -94,8 +94,8 @@ impl Waypoints {
     }
 
     pub fn reset(&mut self, env: &Env, seed: u64) {
-        // Decorrelate the expert's noise stream from the environment's.
-        self.rng = EpisodeRng::from_seed(seed ^ 0x9e37_79b9_7f4a_7c15);
+        // The expert's own stream of this seed (apart from the episode's and the auto-resets').
+        self.rng = EpisodeRng::for_use(seed, SeedUse::Expert);
         self.commanded = env.scene().tcp_pose().translation.vector;
     }
 

@@ -17,9 +17,11 @@ use crate::error::{EnvError, Result};
 /// Load a robot description from a URDF file.
 pub fn load_urdf(path: impl AsRef<Path>) -> Result<RobotModel> {
     let path = path.as_ref();
-    let text = std::fs::read_to_string(path).map_err(|e| EnvError::Urdf {
-        source_name: path.display().to_string(),
-        reason: format!("cannot read file: {e}"),
+    let text = std::fs::read_to_string(path).map_err(|e| match e.kind() {
+        std::io::ErrorKind::NotFound => {
+            EnvError::FileNotFound { what: "robot description".into(), path: path.display().to_string() }
+        }
+        _ => EnvError::Urdf { source_name: path.display().to_string(), reason: format!("cannot read file: {e}") },
     })?;
     parse_urdf(&text).map_err(|e| match e {
         EnvError::Urdf { reason, .. } => EnvError::Urdf { source_name: path.display().to_string(), reason },
