@@ -6,6 +6,7 @@
 //! file raises `FileNotFoundError`.
 
 mod latent;
+mod steer;
 mod symmetry;
 
 use std::path::PathBuf;
@@ -271,6 +272,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("PolicyError", py.get_type::<PolicyError>())?;
     m.add_function(wrap_pyfunction!(symmetry::measure_symmetry_breaking, m)?)?;
     m.add_class::<vector::VecEnv>()?;
+    m.add_function(wrap_pyfunction!(steer::steer_run, m)?)?;
     m.add("EquigymError", py.get_type::<EquigymError>())?;
     m.add("UrdfError", py.get_type::<UrdfError>())?;
     m.add("InvalidStateError", py.get_type::<InvalidStateError>())?;

@@ -1,0 +1,74 @@
+//! Binding of the Rust steering agents (`equigym-agents`): one run, the GIL released.
+
+use std::path::PathBuf;
+
+use equigym_agents::{run, Method, Preset, RunConfig};
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::symmetry::sym_err;
+
+fn agents_err(e: equigym_agents::Error) -> PyErr {
+    match e {
+        equigym_agents::Error::Wrappers(w) => sym_err(w),
+        equigym_agents::Error::InvalidOption(_) | equigym_agents::Error::Checkpoint { .. } => PyValueError::new_err(e.to_string()),
+        equigym_agents::Error::Io { .. } | equigym_agents::Error::Diverged(_) => PyRuntimeError::new_err(e.to_string()),
+    }
+}
+
+/// Train one steering agent in Rust (see `python -m equigym.steer run --help`); returns a dict
+/// with the run directory, the log rows, step counts, seconds and a hash of the final weights.
+#[pyfunction]
+#[pyo3(signature = (method, task, seed, steps, out, *, threads=1, preset="cpu", joint_limits=true, controller=None, eval_every=2000, eval_episodes=50, policy=None, ent_init=None, horizon=None, progress=false, stop_after_evals=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn steer_run<'py>(
+    py: Python<'py>,
+    method: &str,
+    task: &str,
+    seed: u64,
+    steps: usize,
+    out: PathBuf,
+    threads: usize,
+    preset: &str,
+    joint_limits: bool,
+    controller: Option<&str>,
+    eval_every: usize,
+    eval_episodes: usize,
+    policy: Option<PathBuf>,
+    ent_init: Option<f64>,
+    horizon: Option<usize>,
+    progress: bool,
+    stop_after_evals: Option<usize>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let mut cfg = RunConfig::new(Method::parse(method).map_err(agents_err)?, task, seed, steps, out).map_err(agents_err)?;
+    cfg.threads = threads;
+    cfg.preset = Preset::named(preset).map_err(agents_err)?;
+    cfg.joint_limits = joint_limits;
+    cfg.cartesian = match controller {
+        None => None,
+        Some("joint") => Some(false),
+        Some("cartesian") => Some(true),
+        Some(other) => return Err(PyValueError::new_err(format!("controller must be 'joint' or 'cartesian', got '{other}'"))),
+    };
+    cfg.eval_every = eval_every;
+    cfg.eval_episodes = eval_episodes;
+    cfg.policy = policy;
+    cfg.ent_init = ent_init;
+    cfg.horizon = horizon;
+    cfg.progress = progress;
+    cfg.stop_after_evals = stop_after_evals;
+    let s = py.detach(|| run(&cfg)).map_err(agents_err)?;
+    let d = PyDict::new(py);
+    d.set_item("run_dir", s.run_dir)?;
+    let rows: Vec<(u64, f64, f64, f64)> = s.rows.iter().map(|r| (r.env_steps, r.success_rate, r.mean_q, r.seconds)).collect();
+    d.set_item("rows", rows)?;
+    d.set_item("env_steps", s.env_steps)?;
+    d.set_item("grad_steps", s.grad_steps)?;
+    d.set_item("seconds", s.seconds)?;
+    d.set_item("params_hash", format!("{:016x}", s.params_hash))?;
+    d.set_item("fields", s.fields)?;
+    d.set_item("params_actor", s.params_actor)?;
+    d.set_item("params_critic", s.params_critic)?;
+    Ok(d)
+}
