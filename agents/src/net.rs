@@ -236,7 +236,7 @@ impl<T: Real> Net<T> {
                     }
                     for &(d, p, c) in &basis.weights {
                         let d = d as usize;
-                        l.wt[d] = params[*w + p as usize].fma(T::from_f64(c), l.wt[d]);
+                        l.wt[d] += params[*w + p as usize] * T::from_f64(c);
                     }
                     let bias_at = *w + basis.n_weights;
                     for &(o, p) in &basis.bias {
@@ -303,12 +303,12 @@ impl<T: Real> Net<T> {
                                 }
                             }
                             am[r * fields + f] = best as u32;
-                            q = field[best].fma(self.params[*w + f], q);
+                            q += field[best] * self.params[*w + f];
                         }
                         if let Some((pw, pb)) = plain {
                             let mut s = self.params[*pb];
                             for (i, v) in h.iter().enumerate() {
-                                s = v.fma(self.params[pw + i], s);
+                                s += *v * self.params[pw + i];
                             }
                             q += s;
                         }
@@ -347,7 +347,7 @@ impl<T: Real> Net<T> {
                                 ops::add_column_sums(&d, gb);
                                 for &(e, p, c) in &basis.weights {
                                     let i = *w + p as usize;
-                                    g[i] = gw[e as usize].fma(T::from_f64(c), g[i]);
+                                    g[i] += gw[e as usize] * T::from_f64(c);
                                 }
                                 let bias_at = *w + basis.n_weights;
                                 for &(o, p) in &basis.bias {
@@ -395,12 +395,12 @@ impl<T: Real> Net<T> {
                             let h = &input[r * width..(r + 1) * width];
                             for f in 0..*fields {
                                 let a = am[r * fields + f] as usize;
-                                g[*w + f] = d[r].fma(h[f * order + a], g[*w + f]);
+                                g[*w + f] += d[r] * h[f * order + a];
                             }
                             g[*b] += d[r];
                             if let Some((pw, pb)) = plain {
                                 for (i, v) in h.iter().enumerate() {
-                                    g[pw + i] = d[r].fma(*v, g[pw + i]);
+                                    g[pw + i] += d[r] * *v;
                                 }
                                 g[*pb] += d[r];
                             }
@@ -418,7 +418,7 @@ impl<T: Real> Net<T> {
                             }
                             for f in 0..*fields {
                                 let a = am[r * fields + f] as usize;
-                                row[f * order + a] = d[r].fma(self.params[*w + f], row[f * order + a]);
+                                row[f * order + a] += d[r] * self.params[*w + f];
                             }
                         }
                         std::mem::swap(&mut d, &mut next);

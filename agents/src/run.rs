@@ -513,7 +513,7 @@ impl Runner {
     fn write_log(&self, dir: &Path) -> Result<()> {
         let mut s = String::from("env_steps,success_rate,mean_q,seconds\n");
         for r in &self.rows {
-            s.push_str(&format!("{},{},{},{:.1}\n", r.env_steps, r.success_rate, fmt_float(r.mean_q), r.seconds));
+            s.push_str(&format!("{},{},{},{:.1}\n", r.env_steps, fmt_float(r.success_rate), fmt_float(r.mean_q), r.seconds));
         }
         write_atomic(&dir.join("log.csv"), s.as_bytes())
     }
@@ -521,7 +521,7 @@ impl Runner {
 
 /// Python's spelling of floats in CSV (`nan` for NaN).
 fn fmt_float(v: f64) -> String {
-    if v.is_nan() { "nan".into() } else { format!("{v}") }
+    if v.is_nan() { "nan".into() } else { format!("{v:?}") }
 }
 
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {

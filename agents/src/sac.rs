@@ -75,7 +75,7 @@ impl PolicyHead {
                 let std = ls.exp();
                 let e = s.eps[r * d + i];
                 s.std[r * d + i] = std;
-                s.u[r * d + i] = std.fma(e, o[i]);
+                s.u[r * d + i] = std * e + o[i];
                 lp += -(half * e * e) - ls - half_log_2pi;
             }
             let logdet = self.squash.forward(&s.u[r * d..(r + 1) * d], &mut s.a[r * d..(r + 1) * d]);
@@ -293,7 +293,7 @@ impl<T: Real> Sac<T> {
         let keep = T::from_f64(1.0 - self.config.tau);
         for (t, c) in self.targets.iter_mut().zip(&self.critics) {
             for (tp, cp) in t.params.iter_mut().zip(&c.params) {
-                *tp = cp.fma(tau, *tp * keep);
+                *tp = *tp * keep + *cp * tau;
             }
             t.expand();
         }

@@ -64,7 +64,7 @@ impl<T: Real> Adam<T> {
                     if c.decoupled {
                         params[i] = params[i] * shrink;
                     } else {
-                        g = params[i].fma(wd, g);
+                        g = params[i] * wd + g;
                     }
                 }
                 self.m[i] = b1 * self.m[i] + ob1 * g;
