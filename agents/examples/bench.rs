@@ -15,6 +15,27 @@ use equigym_agents::sac::{Sac, SacConfig};
 use equigym_envs::TaskOptions;
 use equigym_wrappers::{Group, TaskSymmetry};
 
+/// CPU time of this thread (seconds; Linux's schedstat), so that other load on the machine
+/// distorts the figures less than wall time would; wall time elsewhere.
+struct Clock(Option<f64>, Instant);
+
+fn thread_cpu() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    Some(s.split_whitespace().next()?.parse::<f64>().ok()? * 1e-9)
+}
+
+impl Clock {
+    fn start() -> Self {
+        Clock(thread_cpu(), Instant::now())
+    }
+    fn seconds(&self) -> f64 {
+        match (self.0, thread_cpu()) {
+            (Some(a), Some(b)) => b - a,
+            _ => self.1.elapsed().as_secs_f64(),
+        }
+    }
+}
+
 /// Independent FMA chains per lane block (enough to cover latency x throughput).
 const CHAINS: usize = 12;
 
@@ -39,9 +60,9 @@ fn fma_peak() -> f64 {
     {
         if equigym_agents::nn::has_fast_fma() {
             let iters = 20_000_000;
-            let t = Instant::now();
+            let t = Clock::start();
             let s = unsafe { fma_peak_loop(iters) };
-            let dt = t.elapsed().as_secs_f64();
+            let dt = t.seconds();
             std::hint::black_box(s);
             return (iters * CHAINS * 8 * 2) as f64 / dt / 1e9;
         }
@@ -54,12 +75,12 @@ fn gemm_gflops(m: usize, n: usize, k: usize, ta: Trans, reps: usize) -> f64 {
     let b: Vec<f32> = (0..k * n).map(|i| (i % 5) as f32 * 0.1).collect();
     let mut c = vec![0.0f32; m * n];
     gemm(m, n, k, &a, ta, &b, &mut c, false);
-    let t = Instant::now();
+    let t = Clock::start();
     for _ in 0..reps {
         gemm(m, n, k, &a, ta, &b, &mut c, true);
     }
     std::hint::black_box(&c);
-    (2 * m * n * k * reps) as f64 / t.elapsed().as_secs_f64() / 1e9
+    (2 * m * n * k * reps) as f64 / t.seconds() / 1e9
 }
 
 fn grad_steps_per_s(method: Method, arch: Arch, steps: usize) -> (f64, usize) {
@@ -79,12 +100,12 @@ fn grad_steps_per_s(method: Method, arch: Arch, steps: usize) -> (f64, usize) {
     let (mut r1, mut r2) = (Rng::new(0, Stream::Replay, 0), Rng::new(0, Stream::Train, 0));
     replay.sample(256, &mut r1, &mut batch);
     sac.train_step(&batch, &mut r2);
-    let t = Instant::now();
+    let t = Clock::start();
     for _ in 0..steps {
         replay.sample(256, &mut r1, &mut batch);
         sac.train_step(&batch, &mut r2);
     }
-    (steps as f64 / t.elapsed().as_secs_f64(), fields)
+    (steps as f64 / t.seconds(), fields)
 }
 
 fn main() {

@@ -7,6 +7,8 @@
 //! - [`nn`] (the `equigym-nn` crate): f32 / f64 kernels with one summation order per output;
 //! - [`equi`]: bases of C8-equivariant linear maps between the task's rho0 / rho1 fields and
 //!   regular hidden fields, expanded once per optimiser step;
+//! - [`fourier`]: regular -> regular layers in the Fourier basis (14 instead of 64 multiply-adds
+//!   per field pair), used by Equi-DSRL's hidden layers;
 //! - [`net`]: networks over one parameter vector (plain, equivariant, RPP layers; LayerNorm,
 //!   Tanh, ReLU; the invariant pooling head);
 //! - [`models`]: each method's actor and twin critics, parameter-matched as the SB3 baselines;
@@ -20,6 +22,7 @@ pub use equigym_nn as nn;
 
 pub mod equi;
 pub mod error;
+pub mod fourier;
 pub mod models;
 pub mod net;
 pub mod replay;

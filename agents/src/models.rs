@@ -147,11 +147,16 @@ fn head_fields(latent: &[Field], latent_dim: usize) -> Vec<Field> {
 fn trunk<'a, T: Real>(mut b: NetBuilder<'a, T>, inputs: &[Field], n_in: usize, fields: usize, layers: usize, residual: bool) -> Result<NetBuilder<'a, T>> {
     let hidden = regular_fields(fields, GROUP_ORDER);
     let width = fields * GROUP_ORDER;
-    let mut from: (Vec<Field>, usize) = (inputs.to_vec(), n_in);
-    for _ in 0..layers {
-        let basis = Arc::new(Basis::new(&from.0, from.1, &hidden, width, GROUP_ORDER)?);
-        b = b.equi(basis, residual).relu();
-        from = (hidden.clone(), width);
+    let basis = Arc::new(Basis::new(inputs, n_in, &hidden, width, GROUP_ORDER)?);
+    b = b.equi(basis, residual).relu();
+    for _ in 1..layers {
+        if residual {
+            // RPP adds a dense plain path anyway: one expanded matrix serves both.
+            let basis = Arc::new(Basis::new(&hidden, width, &hidden, width, GROUP_ORDER)?);
+            b = b.equi(basis, true).relu();
+        } else {
+            b = b.circulant(fields).relu();
+        }
     }
     Ok(b)
 }

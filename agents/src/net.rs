@@ -13,6 +13,7 @@ use equigym_nn::{gemm, ops, Real, Trans};
 use serde::{Deserialize, Serialize};
 
 use crate::equi::Basis;
+use crate::fourier::{Circulant, ORDER};
 use crate::rng::Rng;
 
 /// Weight decay of the equivariant path of an RPP layer (Finzi et al. 2021, the paper).
@@ -53,6 +54,8 @@ pub enum Layer<T> {
     /// Critic head: `q = b + sum_f w_f max_a h(f, a)` over `fields` regular fields of size
     /// `order` (invariant), plus an RPP plain path `b' + v . h` when `plain` is given.
     PoolHead { fields: usize, order: usize, w: usize, b: usize, plain: Option<(usize, usize)> },
+    /// A regular -> regular C8-equivariant layer run in the Fourier basis ([`crate::fourier`]).
+    Circulant(Circulant<T>),
 }
 
 /// Activations kept by a forward pass for the backward pass.
@@ -157,6 +160,17 @@ impl<'a, T: Real> NetBuilder<'a, T> {
         self.width = n_out;
     }
 
+    /// A regular -> regular equivariant layer in the Fourier basis (`fields` output fields).
+    pub fn circulant(mut self, fields: usize) -> Self {
+        let f_in = self.width / ORDER;
+        let bound = Circulant::<T>::init_scale() / (self.width as f64).sqrt();
+        let w = self.alloc(Circulant::<T>::num_weights(f_in, fields), bound, 0.0);
+        let b = self.alloc_const(fields, 0.0, 0.0);
+        self.net.layers.push(Layer::Circulant(Circulant::new(f_in, fields, w, b)));
+        self.width = fields * ORDER;
+        self
+    }
+
     pub fn layer_norm(mut self) -> Self {
         let n = self.width;
         let g = self.alloc_const(n, 1.0, 0.0);
@@ -216,6 +230,10 @@ impl<T: Real> Net<T> {
     pub fn expand(&mut self) {
         let params = &self.params;
         for layer in &mut self.layers {
+            if let Layer::Circulant(c) = layer {
+                c.expand(params);
+                continue;
+            }
             let Layer::Linear(l) = layer else { continue };
             let (n_in, n_out) = (l.n_in, l.n_out);
             match &l.kind {
@@ -281,6 +299,11 @@ impl<T: Real> Net<T> {
                     out.clear();
                     out.extend_from_slice(input);
                     ops::tanh(out);
+                }
+                Layer::Circulant(c) => {
+                    let mut yhat = Vec::new();
+                    c.forward(&self.params, input, rows, out, &mut tape.aux[l], &mut yhat);
+                    width = c.f_out * ORDER;
                 }
                 Layer::Relu => {
                     out.clear();
@@ -386,6 +409,13 @@ impl<T: Real> Net<T> {
                     }
                 }
                 Layer::Tanh => ops::tanh_backward(output, &mut d),
+                Layer::Circulant(c) => {
+                    let (mut dyhat, mut gm) = (Vec::new(), Vec::new());
+                    c.backward(&tape.aux[l], &d, rows, grads.as_deref_mut(), need_dx.then_some(&mut next), &mut dyhat, &mut gm);
+                    if need_dx {
+                        std::mem::swap(&mut d, &mut next);
+                    }
+                }
                 Layer::Relu => ops::relu_backward(output, &mut d),
                 Layer::PoolHead { fields, order, w, b, plain } => {
                     let width = fields * order;
@@ -450,6 +480,7 @@ impl<T: Real> Net<T> {
                 Layer::Tanh => Layer::Tanh,
                 Layer::Relu => Layer::Relu,
                 Layer::PoolHead { fields, order, w, b, plain } => Layer::PoolHead { fields: *fields, order: *order, w: *w, b: *b, plain: *plain },
+                Layer::Circulant(c) => Layer::Circulant(Circulant::new(c.f_in, c.f_out, c.w, c.b)),
             })
             .collect();
         let mut net = Net { n_in: self.n_in, n_out: self.n_out, layers, params: self.params.iter().map(|v| U::from_f64(v.to_f64())).collect(), decay: self.decay.clone() };

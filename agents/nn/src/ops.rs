@@ -26,18 +26,14 @@ pub fn add_column_sums<T: Real>(dy: &[T], grad: &mut [T]) {
 
 pub fn relu<T: Real>(x: &mut [T]) {
     for v in x {
-        if !(*v > T::ZERO) {
-            *v = T::ZERO;
-        }
+        *v = if *v > T::ZERO { *v } else { T::ZERO };
     }
 }
 
 /// `dy *= [y > 0]` (backward through ReLU, from its output).
 pub fn relu_backward<T: Real>(y: &[T], dy: &mut [T]) {
     for (d, v) in dy.iter_mut().zip(y) {
-        if !(*v > T::ZERO) {
-            *d = T::ZERO;
-        }
+        *d = if *v > T::ZERO { *d } else { T::ZERO };
     }
 }
 
