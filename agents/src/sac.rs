@@ -109,6 +109,86 @@ impl PolicyHead {
     }
 }
 
+/// The soft target `y = r + gamma (1 - terminated) (min_k Q'_k(s', a') - alpha log pi(a'|s'))`,
+/// with `a'` the actor's sample for noise `eps` (kept in `s2`).
+#[allow(clippy::too_many_arguments)]
+pub fn soft_target<T: Real>(head: &PolicyHead, actor: &Net<T>, targets: &[Net<T>; 2], batch: &Batch<T>, eps: &[T], alpha: T, gamma: T, s2: &mut ActorSample<T>) -> Vec<T> {
+    let (b, ad) = (batch.rows, head.dim);
+    let od = batch.obs.len() / b.max(1);
+    head.sample(actor, &batch.next_obs, b, eps, s2);
+    let mut x = Vec::new();
+    concat_rows(&batch.next_obs, od, &s2.a, ad, b, &mut x);
+    let mut tape = Tape::default();
+    let mut next_q = vec![T::ZERO; b];
+    for (k, t) in targets.iter().enumerate() {
+        t.forward(&x, b, &mut tape);
+        for (q, v) in next_q.iter_mut().zip(tape.output()) {
+            *q = if k == 0 { *v } else { q.min(*v) };
+        }
+    }
+    (0..b).map(|r| batch.reward[r] + (T::ONE - batch.done[r]) * gamma * (next_q[r] - alpha * s2.logp[r])).collect()
+}
+
+/// One critic's loss `0.5 mean_r (Q(x_r) - y_r)^2` (the SB3 critic loss is the sum over the
+/// twins); its parameter gradient is added into `grads`.
+pub fn critic_loss_grad<T: Real>(critic: &Net<T>, x: &[T], y: &[T], grads: &mut [T], tape: &mut Tape<T>, scratch: &mut Vec<T>) -> f64 {
+    let b = y.len();
+    let inv_b = T::from_f64(1.0 / b as f64);
+    critic.forward(x, b, tape);
+    let q = tape.output();
+    let dq: Vec<T> = q.iter().zip(y).map(|(q, y)| (*q - *y) * inv_b).collect();
+    let loss = q.iter().zip(y).map(|(q, y)| 0.5 * (q.to_f64() - y.to_f64()).powi(2)).sum::<f64>() / b as f64;
+    critic.backward(tape, &dq, Some(grads), false, scratch);
+    loss
+}
+
+/// The actor loss `mean_r(alpha log pi(a_r|s_r) - min_k Q_k(s_r, a_r))` for the sample `s1`
+/// (taken at `obs`); its gradient with respect to the actor's parameters is added into `grads`.
+#[allow(clippy::too_many_arguments)]
+pub fn actor_loss_grad<T: Real>(head: &PolicyHead, actor: &Net<T>, critics: &[Net<T>; 2], obs: &[T], s1: &ActorSample<T>, alpha: T, grads: &mut [T], scratch: &mut Vec<T>) -> f64 {
+    let (b, ad) = (s1.rows, head.dim);
+    let od = actor.n_in;
+    let inv_b = T::from_f64(1.0 / b as f64);
+    let mut x = Vec::new();
+    concat_rows(obs, od, &s1.a, ad, b, &mut x);
+    let mut tapes = [Tape::default(), Tape::default()];
+    for k in 0..2 {
+        critics[k].forward(&x, b, &mut tapes[k]);
+    }
+    let (q0, q1) = (tapes[0].output(), tapes[1].output());
+    let mut loss = 0.0;
+    let mut dsel = [vec![T::ZERO; b], vec![T::ZERO; b]];
+    for r in 0..b {
+        // torch.min over the twins: the gradient goes to the first minimum
+        let k = if q0[r] <= q1[r] { 0 } else { 1 };
+        dsel[k][r] = -inv_b;
+        loss += (alpha.to_f64() * s1.logp[r].to_f64() - q0[r].min(q1[r]).to_f64()) / b as f64;
+    }
+    let mut ga = vec![T::ZERO; b * ad];
+    for k in 0..2 {
+        if let Some(dx) = critics[k].backward(&tapes[k], &dsel[k], None, true, scratch) {
+            for r in 0..b {
+                for i in 0..ad {
+                    ga[r * ad + i] += dx[r * (od + ad) + od + i];
+                }
+            }
+        }
+    }
+    let glogp = vec![alpha * inv_b; b];
+    head.sample_backward(actor, s1, &ga, &glogp, grads, scratch);
+    loss
+}
+
+/// The entropy-coefficient loss `-log_alpha mean(log pi + target_entropy)` and its gradient.
+pub fn alpha_loss_grad<T: Real>(log_alpha: T, logp: &[T], target_entropy: f64) -> (f64, T) {
+    let mut mean = T::ZERO;
+    for lp in logp {
+        mean += *lp + T::from_f64(target_entropy);
+    }
+    mean = mean * T::from_f64(1.0 / logp.len().max(1) as f64);
+    ((-(log_alpha * mean)).to_f64(), -mean)
+}
+
 /// The SAC learner: networks, targets, optimisers, entropy coefficient.
 pub struct Sac<T> {
     pub config: SacConfig,
@@ -209,7 +289,6 @@ impl<T: Real> Sac<T> {
     /// One gradient step on a minibatch (see the module docs); `rng` is the training stream.
     pub fn train_step(&mut self, batch: &Batch<T>, rng: &mut Rng) -> StepStats {
         let (od, ad, b) = (self.obs_dim, self.head.dim, batch.rows);
-        let inv_b = T::from_f64(1.0 / b as f64);
         let sc = &mut self.scratch;
         // 1. a ~ pi(.|s)
         sc.eps.resize(b * ad, T::ZERO);
@@ -217,75 +296,28 @@ impl<T: Real> Sac<T> {
         self.head.sample(&self.actor, &batch.obs, b, &sc.eps, &mut sc.s1);
         // 2. entropy coefficient
         let alpha = self.log_alpha.exp();
-        let mut mean_lp = T::ZERO;
-        for lp in &sc.s1.logp {
-            mean_lp += *lp + T::from_f64(self.config.target_entropy);
-        }
-        mean_lp = mean_lp * inv_b;
-        let alpha_loss = -(self.log_alpha * mean_lp);
+        let (alpha_loss, g_alpha) = alpha_loss_grad(self.log_alpha, &sc.s1.logp, self.config.target_entropy);
         let mut la = [self.log_alpha];
-        self.opt_alpha.update(&mut la, &[-mean_lp]);
+        self.opt_alpha.update(&mut la, &[g_alpha]);
         self.log_alpha = la[0];
         // 3. target
         normals(rng, &mut sc.eps);
-        self.head.sample(&self.actor, &batch.next_obs, b, &sc.eps, &mut sc.s2);
-        concat_rows(&batch.next_obs, od, &sc.s2.a, ad, b, &mut sc.x);
-        let mut next_q = vec![T::ZERO; b];
-        for (k, t) in self.targets.iter().enumerate() {
-            t.forward(&sc.x, b, &mut sc.tape);
-            for (q, v) in next_q.iter_mut().zip(sc.tape.output()) {
-                *q = if k == 0 { *v } else { q.min(*v) };
-            }
-        }
-        let gamma = T::from_f64(self.config.gamma);
-        let y: Vec<T> = (0..b)
-            .map(|r| {
-                let soft = next_q[r] - alpha * sc.s2.logp[r];
-                batch.reward[r] + (T::ONE - batch.done[r]) * gamma * soft
-            })
-            .collect();
+        let y = soft_target(&self.head, &self.actor, &self.targets, batch, &sc.eps, alpha, T::from_f64(self.config.gamma), &mut sc.s2);
         // 4. critics
         concat_rows(&batch.obs, od, &batch.act, ad, b, &mut sc.x);
         let mut critic_loss = 0.0;
         for k in 0..2 {
             let c = &mut self.critics[k];
-            c.forward(&sc.x, b, &mut sc.tapes[k]);
-            let q = sc.tapes[k].output();
-            let dq: Vec<T> = q.iter().zip(&y).map(|(q, y)| (*q - *y) * inv_b).collect();
-            critic_loss += q.iter().zip(&y).map(|(q, y)| 0.5 * (q.to_f64() - y.to_f64()).powi(2)).sum::<f64>() / b as f64;
             sc.grads.clear();
             sc.grads.resize(c.num_params(), T::ZERO);
-            c.backward(&sc.tapes[k], &dq, Some(&mut sc.grads), false, &mut sc.lin);
+            critic_loss += critic_loss_grad(c, &sc.x, &y, &mut sc.grads, &mut sc.tapes[k], &mut sc.lin);
             self.opt_critics[k].update(&mut c.params, &sc.grads);
             c.expand();
         }
         // 5. actor through the updated critics
-        concat_rows(&batch.obs, od, &sc.s1.a, ad, b, &mut sc.x);
-        for k in 0..2 {
-            self.critics[k].forward(&sc.x, b, &mut sc.tapes[k]);
-        }
-        let (q0, q1) = (sc.tapes[0].output(), sc.tapes[1].output());
-        let mut actor_loss = 0.0;
-        let mut ga = vec![T::ZERO; b * ad];
-        let mut dsel = [vec![T::ZERO; b], vec![T::ZERO; b]];
-        for r in 0..b {
-            let k = if q0[r] <= q1[r] { 0 } else { 1 };
-            dsel[k][r] = -inv_b;
-            actor_loss += (alpha.to_f64() * sc.s1.logp[r].to_f64() - q0[r].min(q1[r]).to_f64()) / b as f64;
-        }
-        for k in 0..2 {
-            if let Some(dx) = self.critics[k].backward(&sc.tapes[k], &dsel[k], None, true, &mut sc.lin) {
-                for r in 0..b {
-                    for i in 0..ad {
-                        ga[r * ad + i] += dx[r * (od + ad) + od + i];
-                    }
-                }
-            }
-        }
-        let glogp = vec![alpha * inv_b; b];
         sc.grads.clear();
         sc.grads.resize(self.actor.num_params(), T::ZERO);
-        self.head.sample_backward(&self.actor, &sc.s1, &ga, &glogp, &mut sc.grads, &mut sc.lin);
+        let actor_loss = actor_loss_grad(&self.head, &self.actor, &self.critics, &batch.obs, &sc.s1, alpha, &mut sc.grads, &mut sc.lin);
         self.opt_actor.update(&mut self.actor.params, &sc.grads);
         self.actor.expand();
         // 6. Polyak

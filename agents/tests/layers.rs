@@ -5,7 +5,7 @@
 use equigym_agents::models::{Arch, Method, Models};
 use equigym_agents::net::{Net, Tape};
 use equigym_agents::rng::{Rng, Stream};
-use equigym_agents::sac::{concat_rows, ActorSample};
+use equigym_agents::sac::{actor_loss_grad, alpha_loss_grad, concat_rows, critic_loss_grad, ActorSample};
 use equigym_envs::TaskOptions;
 use equigym_wrappers::{Group, TaskSymmetry};
 
@@ -73,36 +73,13 @@ fn every_layer_matches_finite_differences() {
     }
 }
 
-/// The actor loss mean(alpha log pi - min Q) as a function of the actor's parameters.
+/// The actor loss mean(alpha log pi - min Q) as a function of the actor's parameters (the
+/// function the SAC step itself calls).
 fn actor_loss(m: &Models<f64>, actor: &Net<f64>, obs: &[f64], eps: &[f64], alpha: f64) -> (f64, Vec<f64>) {
-    let (od, ad) = (actor.n_in, m.head.dim);
     let mut s = ActorSample::default();
     m.head.sample(actor, obs, ROWS, eps, &mut s);
-    let mut x = Vec::new();
-    concat_rows(obs, od, &s.a, ad, ROWS, &mut x);
-    let mut tapes = [Tape::default(), Tape::default()];
-    for k in 0..2 {
-        m.critics[k].forward(&x, ROWS, &mut tapes[k]);
-    }
-    let mut loss = 0.0;
-    let mut dsel = [vec![0.0; ROWS], vec![0.0; ROWS]];
-    for r in 0..ROWS {
-        let (q0, q1) = (tapes[0].output()[r], tapes[1].output()[r]);
-        let k = if q0 <= q1 { 0 } else { 1 };
-        dsel[k][r] = -1.0 / ROWS as f64;
-        loss += (alpha * s.logp[r] - q0.min(q1)) / ROWS as f64;
-    }
-    let mut ga = vec![0.0; ROWS * ad];
-    for k in 0..2 {
-        let dx = m.critics[k].backward(&tapes[k], &dsel[k], None, true, &mut Vec::new()).unwrap();
-        for r in 0..ROWS {
-            for i in 0..ad {
-                ga[r * ad + i] += dx[r * (od + ad) + od + i];
-            }
-        }
-    }
     let mut g = vec![0.0; actor.num_params()];
-    m.head.sample_backward(actor, &s, &ga, &vec![alpha / ROWS as f64; ROWS], &mut g, &mut Vec::new());
+    let loss = actor_loss_grad(&m.head, actor, &m.critics, obs, &s, alpha, &mut g, &mut Vec::new());
     (loss, g)
 }
 
@@ -131,6 +108,36 @@ fn actor_loss_gradient_matches_finite_differences() {
             assert!((fd - g[i]).abs() <= 1e-5 * (1.0 + fd.abs()), "{method:?} actor loss: param {i}: analytic {} vs finite difference {fd}", g[i]);
         }
     }
+}
+
+#[test]
+fn critic_and_entropy_losses_match_finite_differences() {
+    for method in [Method::Dsrl, Method::Equi, Method::Approx] {
+        let m = models(method);
+        let mut rng = Rng::new(5, Stream::Eval, 6);
+        let c = &m.critics[1];
+        let x = randn(ROWS * c.n_in, &mut rng);
+        let y = randn(ROWS, &mut rng);
+        let loss = |net: &Net<f64>| {
+            let mut g = vec![0.0; net.num_params()];
+            (critic_loss_grad(net, &x, &y, &mut g, &mut Tape::default(), &mut Vec::new()), g)
+        };
+        let (_, g) = loss(c);
+        for i in (0..c.num_params()).step_by((c.num_params() / 50).max(1)) {
+            let mut c2 = c.clone();
+            c2.params[i] += FD_STEP;
+            c2.expand();
+            let up = loss(&c2).0;
+            c2.params[i] -= 2.0 * FD_STEP;
+            c2.expand();
+            let fd = (up - loss(&c2).0) / (2.0 * FD_STEP);
+            assert!((fd - g[i]).abs() <= 1e-5 * (1.0 + fd.abs()), "{method:?} critic loss: param {i}: {} vs {fd}", g[i]);
+        }
+    }
+    let logp = [-3.0, 1.5, 0.25];
+    let (l0, g) = alpha_loss_grad(0.2f64, &logp, 0.0);
+    let fd = (alpha_loss_grad(0.2 + FD_STEP, &logp, 0.0).0 - l0) / FD_STEP;
+    assert!((fd - g).abs() < 1e-6, "entropy loss: {g} vs {fd}");
 }
 
 #[test]
