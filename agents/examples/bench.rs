@@ -75,12 +75,15 @@ fn gemm_gflops(m: usize, n: usize, k: usize, ta: Trans, reps: usize) -> f64 {
     let b: Vec<f32> = (0..k * n).map(|i| (i % 5) as f32 * 0.1).collect();
     let mut c = vec![0.0f32; m * n];
     gemm(m, n, k, &a, ta, &b, &mut c, false);
+    // At least `reps` calls and a quarter of a second of CPU time (the clock's resolution).
     let t = Clock::start();
-    for _ in 0..reps {
+    let mut calls = 0;
+    while calls < reps || t.seconds() < 0.25 {
         gemm(m, n, k, &a, ta, &b, &mut c, true);
+        calls += 1;
     }
     std::hint::black_box(&c);
-    (2 * m * n * k * reps) as f64 / t.seconds() / 1e9
+    (2 * m * n * k * calls) as f64 / t.seconds() / 1e9
 }
 
 fn grad_steps_per_s(method: Method, arch: Arch, steps: usize) -> (f64, usize) {

@@ -23,6 +23,7 @@ pub use equigym_nn as nn;
 pub mod equi;
 pub mod error;
 pub mod fourier;
+pub mod gradcheck;
 pub mod models;
 pub mod net;
 pub mod replay;

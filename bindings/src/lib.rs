@@ -273,6 +273,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(symmetry::measure_symmetry_breaking, m)?)?;
     m.add_class::<vector::VecEnv>()?;
     m.add_function(wrap_pyfunction!(steer::steer_run, m)?)?;
+    m.add_function(wrap_pyfunction!(steer::steer_gradcase, m)?)?;
     m.add("EquigymError", py.get_type::<EquigymError>())?;
     m.add("UrdfError", py.get_type::<UrdfError>())?;
     m.add("InvalidStateError", py.get_type::<InvalidStateError>())?;

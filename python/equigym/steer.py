@@ -3,7 +3,7 @@ and a report next to the SB3 baselines.
 
     python -m equigym.steer run --method equi --task lift --seed 0 --steps 16000 --out runs/steer-rust
     python -m equigym.steer sweep --methods dsrl equi approx --tasks lift --seeds 0 1 2 3 4 --steps 16000 \\
-        --out runs/sweep [--sb3 dsrl equi approx] [--cpus 2] [--address ray://host:10001] [--resume]
+        --out runs/sweep [--sb3 dsrl equi approx --sb3-seeds 0 1 2] [--cpus 2] [--address ray://host:10001] [--resume]
     python -m equigym.steer report --runs runs/sweep/rust [--sb3-runs runs/steer] --out docs/steering/rust
 
 ``run`` trains in-process in Rust (the GIL is released) and writes
@@ -100,11 +100,13 @@ def sweep(a: argparse.Namespace) -> None:
     except ImportError as e:  # pragma: no cover
         raise SystemExit("the sweep needs Ray Tune: pip install 'equigym[sweep]' (or 'ray[tune]')") from e
     out = Path(a.out).resolve()
-    grid = [("rust", m) for m in a.methods] + [("sb3", m) for m in (a.sb3 or [])]
+    sb3_seeds = a.sb3_seeds if a.sb3_seeds is not None else a.seeds
+    # Seed-major, so that early results cover every method.
+    jobs = [{"agent": "rust", "method": m, "seed": s} for s in a.seeds for m in a.methods]
+    jobs += [{"agent": "sb3", "method": m, "seed": s} for s in sb3_seeds for m in (a.sb3 or [])]
     space = {
-        "job": tune.grid_search([{"agent": ag, "method": m} for ag, m in grid]),
+        "job": tune.grid_search(jobs),
         "task": tune.grid_search(a.tasks),
-        "seed": tune.grid_search(a.seeds),
         "steps": a.steps, "preset": a.preset, "joint_limits": not a.no_joint_limits, "eval_every": a.eval_every,
         "eval_episodes": a.eval_episodes, "policy": a.policy, "ent_init": a.ent_init, "out_root": str(out),
     }
@@ -162,6 +164,7 @@ def main(argv: list[str] | None = None) -> None:
         else:
             s.add_argument("--methods", nargs="*", choices=METHODS, default=list(METHODS))
             s.add_argument("--sb3", nargs="*", choices=METHODS, default=None, help="SB3 + escnn methods to run as well")
+            s.add_argument("--sb3-seeds", nargs="+", type=int, default=None, help="seeds of the SB3 runs (default: --seeds)")
             s.add_argument("--tasks", nargs="+", choices=TASKS, default=["lift"])
             s.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
             s.add_argument("--cpus", type=int, default=None, help="local Ray CPUs (default: all); one per trial")
