@@ -119,10 +119,15 @@ fn micro<T: Real, const R: usize, const C: usize>(
             row.copy_from_slice(&c[(i0 + r) * n + j0..(i0 + r) * n + j0 + C]);
         }
     }
+    // Bounds of every access below, checked once (the caller asserted the slice lengths).
+    debug_assert!(k == 0 || (i0 + R - 1) * ars + (k - 1) * acs < a.len());
+    debug_assert!(k == 0 || (k - 1) * n + j0 + C <= b.len());
+    let (ap, bp) = (a.as_ptr(), b.as_ptr());
     for p in 0..k {
-        let brow: &[T; C] = b[p * n + j0..p * n + j0 + C].try_into().expect("C columns");
+        // SAFETY: p < k, i0 + r < m and j0 + C <= n, inside the asserted lengths of a and b.
+        let brow: &[T; C] = unsafe { &*(bp.add(p * n + j0) as *const [T; C]) };
         for (r, row) in acc.iter_mut().enumerate() {
-            let av = a[(i0 + r) * ars + p * acs];
+            let av = unsafe { *ap.add((i0 + r) * ars + p * acs) };
             for j in 0..C {
                 row[j] = av.fma(brow[j], row[j]);
             }
