@@ -26,6 +26,7 @@ pub const ORDER: usize = 8;
 const COMPLEX_FREQS: [usize; 3] = [1, 2, 3];
 
 /// The orthonormal real DFT `T` (8 x 8, row-major): `xhat = T x`, `x = T^T xhat`.
+#[allow(clippy::needless_range_loop)]
 pub fn dft_matrix() -> [[f64; ORDER]; ORDER] {
     let mut t = [[0.0; ORDER]; ORDER];
     let n = ORDER as f64;
@@ -107,7 +108,7 @@ impl<T: Real> Circulant<T> {
 
     /// Spatial (rows x 8 F) -> Fourier blocks, concatenated: [x0 | x4 | xc1 | xc2 | xc3], each
     /// block rows x (F or 2 F). One gemm (`(rows F) x 8` times `T^T`), then a reshuffle.
-    fn to_fourier(&self, x: &[T], rows: usize, f: usize, out: &mut Vec<T>) {
+    fn fourier(&self, x: &[T], rows: usize, f: usize, out: &mut Vec<T>) {
         let mut tt = [T::ZERO; ORDER * ORDER];
         for k in 0..ORDER {
             for a in 0..ORDER {
@@ -136,7 +137,7 @@ impl<T: Real> Circulant<T> {
 
     /// Fourier blocks -> spatial (rows x 8 F), added into `out`: a reshuffle, then one gemm
     /// (`(rows F) x 8` times `T`).
-    fn from_fourier(&self, xh: &[T], rows: usize, f: usize, out: &mut [T]) {
+    fn add_spatial(&self, xh: &[T], rows: usize, f: usize, out: &mut [T]) {
         let mut c = vec![T::ZERO; rows * f * ORDER];
         let (x0, x4) = xh.split_at(rows * f);
         let (x4, xc) = x4.split_at(rows * f);
@@ -165,7 +166,7 @@ impl<T: Real> Circulant<T> {
     /// blocks in `xhat` for the backward pass.
     pub fn forward(&self, params: &[T], x: &[T], rows: usize, out: &mut Vec<T>, xhat: &mut Vec<T>, yhat: &mut Vec<T>) {
         let (fi, fo) = (self.f_in, self.f_out);
-        self.to_fourier(x, rows, fi, xhat);
+        self.fourier(x, rows, fi, xhat);
         yhat.clear();
         yhat.resize(rows * 8 * fo, T::ZERO);
         let (oi, oo) = (Self::offsets(rows, fi), Self::offsets(rows, fo));
@@ -177,7 +178,7 @@ impl<T: Real> Circulant<T> {
         out.resize(rows * ORDER * fo, T::ZERO);
         let bias: Vec<T> = (0..fo).flat_map(|f| std::iter::repeat_n(params[self.b + f], ORDER)).collect();
         ops::fill_bias(out, &bias);
-        self.from_fourier(yhat, rows, fo, out);
+        self.add_spatial(yhat, rows, fo, out);
     }
 
     /// Backward from `dy` (rows x 8 F_out): parameter gradients into `grads` (when given), the
@@ -186,7 +187,7 @@ impl<T: Real> Circulant<T> {
     pub fn backward(&self, xhat: &[T], dy: &[T], rows: usize, grads: Option<&mut [T]>, dx: Option<&mut Vec<T>>, dyhat: &mut Vec<T>, gm: &mut Vec<T>) {
         let (fi, fo) = (self.f_in, self.f_out);
         // The inverse transform is T^T, so its backward is T.
-        self.to_fourier(dy, rows, fo, dyhat);
+        self.fourier(dy, rows, fo, dyhat);
         let (oi, oo) = (Self::offsets(rows, fi), Self::offsets(rows, fo));
         if let Some(g) = grads {
             let n = fi * fo;
@@ -233,7 +234,7 @@ impl<T: Real> Circulant<T> {
             }
             dx.clear();
             dx.resize(rows * ORDER * fi, T::ZERO);
-            self.from_fourier(gm, rows, fi, dx);
+            self.add_spatial(gm, rows, fi, dx);
         }
     }
 

@@ -56,6 +56,9 @@ pub fn describe(net: &Net<f64>) -> Vec<LayerSpec> {
         .collect()
 }
 
+/// The radial squash's rho1 pairs and rho0 indices.
+pub type RadialFields = (Vec<(usize, usize)>, Vec<usize>);
+
 /// Everything a parity test needs: networks, inputs, noise, and Rust's losses and gradients.
 pub struct GradCase {
     pub obs_dim: usize,
@@ -66,7 +69,7 @@ pub struct GradCase {
     pub log_std_index: Vec<usize>,
     pub log_std_range: (f64, f64),
     /// None: elementwise tanh; Some((pairs, singles)): radial squash.
-    pub radial: Option<(Vec<(usize, usize)>, Vec<usize>)>,
+    pub radial: Option<RadialFields>,
     pub obs: Vec<f64>,
     pub act: Vec<f64>,
     pub reward: Vec<f64>,

@@ -185,7 +185,7 @@ pub fn alpha_loss_grad<T: Real>(log_alpha: T, logp: &[T], target_entropy: f64) -
     for lp in logp {
         mean += *lp + T::from_f64(target_entropy);
     }
-    mean = mean * T::from_f64(1.0 / logp.len().max(1) as f64);
+    mean *= T::from_f64(1.0 / logp.len().max(1) as f64);
     ((-(log_alpha * mean)).to_f64(), -mean)
 }
 

@@ -62,7 +62,7 @@ impl<T: Real> Adam<T> {
                 let mut g = grads[i];
                 if decay != 0.0 {
                     if c.decoupled {
-                        params[i] = params[i] * shrink;
+                        params[i] *= shrink;
                     } else {
                         g = params[i] * wd + g;
                     }

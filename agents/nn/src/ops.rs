@@ -65,7 +65,7 @@ fn tanh_body<T: Real>(x: &mut [T]) {
 /// `dy *= 1 - y^2` (backward through tanh, from its output).
 pub fn tanh_backward<T: Real>(y: &[T], dy: &mut [T]) {
     for (d, v) in dy.iter_mut().zip(y) {
-        *d = *d * (T::ONE - *v * *v);
+        *d *= T::ONE - *v * *v;
     }
 }
 
@@ -79,13 +79,13 @@ pub fn layer_norm<T: Real>(x: &mut [T], n: usize, gain: &[T], shift: &[T], xhat:
         for v in row.iter() {
             mean += *v;
         }
-        mean = mean * inv_n;
+        mean *= inv_n;
         let mut var = T::ZERO;
         for v in row.iter() {
             let d = *v - mean;
             var += d * d;
         }
-        var = var * inv_n;
+        var *= inv_n;
         let r = T::ONE / (var + eps).sqrt();
         *rs = r;
         for ((v, h), (g, s)) in row.iter_mut().zip(xh.iter_mut()).zip(gain.iter().zip(shift)) {
@@ -120,8 +120,8 @@ pub fn layer_norm_backward<T: Real>(
             mean_d += d;
             mean_dx += d * xh[j];
         }
-        mean_d = mean_d * inv_n;
-        mean_dx = mean_dx * inv_n;
+        mean_d *= inv_n;
+        mean_dx *= inv_n;
         for j in 0..n {
             let d = row[j] * gain[j];
             row[j] = (d - mean_d - xh[j] * mean_dx) * *r;
