@@ -11,42 +11,45 @@ from pathlib import Path
 
 import numpy as np
 
-LABELS = {"dsrl": "DSRL", "equi": "Equi-DSRL", "approx": "Approx-Equi-DSRL", "sac": "SAC (raw actions)"}
+LABELS = {"dsrl": "DSRL", "equi": "Equi-DSRL", "approx": "Approx-Equi-DSRL", "sac": "SAC (raw actions)",
+          # Runs of the Rust agents (equigym.steer; run.json says "agent": "rust").
+          "rust-dsrl": "DSRL (Rust)", "rust-equi": "Equi-DSRL (Rust)", "rust-approx": "Approx-Equi-DSRL (Rust)"}
 
 
-def load_runs(root: str | Path) -> dict[tuple[str, str], list[dict]]:
+def _roots(root: str | Path | list[str | Path]) -> list[Path]:
+    return [Path(r) for r in root] if isinstance(root, (list, tuple)) else [Path(root)]
+
+
+def load_runs(root: str | Path | list[str | Path]) -> dict[tuple[str, str], list[dict]]:
+    """Runs under one or more roots, keyed by (task folder, method); Rust agents' methods are
+    prefixed ``rust-`` so that they sit beside the SB3 runs of the same method."""
     runs: dict[tuple[str, str], list[dict]] = defaultdict(list)
-    for log in sorted(Path(root).glob("*/*/seed*/log.csv")):
-        meta = json.loads((log.parent / "run.json").read_text())
-        with open(log) as f:
-            rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f)]
-        if rows:
-            runs[(log.parents[2].name, meta["method"])].append({"meta": meta, "rows": rows})
+    for base_dir in _roots(root):
+        for log in sorted(base_dir.glob("*/*/seed*/log.csv")):
+            meta = json.loads((log.parent / "run.json").read_text())
+            with open(log) as f:
+                rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f)]
+            method = f"rust-{meta['method']}" if meta.get("agent") == "rust" else meta["method"]
+            if rows:
+                runs[(log.parents[2].name, method)].append({"meta": meta, "rows": rows})
     return runs
 
 
-def load_base(root: str | Path) -> dict[str, float]:
+def load_base(root: str | Path | list[str | Path]) -> dict[str, float]:
     """Base-policy success per task folder (``<root>/<task>/base.json``, from ``steer base``/``sweep``)."""
-    return {
-        p.parent.name: float(json.loads(p.read_text())["success_rate"]) for p in sorted(Path(root).glob("*/base.json"))
-    }
+    return {p.parent.name: float(json.loads(p.read_text())["success_rate"]) for d in _roots(root) for p in sorted(d.glob("*/base.json"))}
 
 
-def write_report(root: str | Path, out: str | Path, base: dict[str, float] | None = None) -> str:
+def write_report(root: str | Path | list[str | Path], out: str | Path, base: dict[str, float] | None = None) -> str:
     runs = load_runs(root)
     base = {**load_base(root), **(base or {})}
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     tasks = sorted({t for t, _ in runs})
     methods = [m for m in LABELS if any(m == mm for _, mm in runs)]
-    lines = [
-        "# Steering results",
-        "",
-        f"From `{root}` by `python -m baselines.steer report`. Success rates of the "
-        "stochastic steering policy, each evaluation >= 50 episodes unless the runs said otherwise; mean +- standard "
-        "error over seeds. The base policy column is the EDP alone (latent noise N(0, I), 100 episodes).",
-        "",
-    ]
+    lines = ["# Steering results", "", f"From `{', '.join(str(r) for r in _roots(root))}` by `python -m baselines.steer report`. Success rates of the "
+             "stochastic steering policy, each evaluation >= 50 episodes unless the runs said otherwise; mean +- standard "
+             "error over seeds. The base policy column is the EDP alone (latent noise N(0, I), 100 episodes).", ""]
 
     def cell(values: list[float]) -> str:
         se = np.std(values, ddof=1) / np.sqrt(len(values)) if len(values) > 1 else float("nan")

@@ -63,9 +63,11 @@ def test_rust_runtime_matches_pytorch(tiny_policy):
     env = equigym.CoreEnv("lift")
     obs = np.stack([env.reset(s) for s in range(8)])
     w = rng.normal(size=(8, 40))
-    rust = policy.sample(obs, w).reshape(8, 40)
-    np.testing.assert_allclose(rust, ExportedPolicy(tiny_policy, torch.float64).sample(obs, w), atol=1e-9)
+    rust64 = policy.sample(obs, w, precision="f64").reshape(8, 40)
+    np.testing.assert_allclose(rust64, ExportedPolicy(tiny_policy, torch.float64).sample(obs, w), atol=1e-9)
+    rust = policy.sample(obs, w).reshape(8, 40)  # float32 network, the default
     np.testing.assert_allclose(rust, ExportedPolicy(tiny_policy, torch.float32).sample(obs, w), atol=1e-4)
+    np.testing.assert_allclose(rust, rust64, atol=1e-4)
     # Other step counts work; 0 is an error.
     assert policy.sample(obs, w, steps=10).shape == (8, 4, 10)
     with pytest.raises(ValueError, match="DDIM steps"):

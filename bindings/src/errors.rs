@@ -6,6 +6,7 @@
 //! exception: Rust errors go through [`to_py`], and inputs the bindings themselves check go
 //! through [`invalid_input`].
 
+use equigym_agents::Error as AgentsError;
 use equigym_envs::EnvError;
 use equigym_wrappers::Error as WrappersError;
 use pyo3::prelude::*;
@@ -25,6 +26,16 @@ const ENOENT: i32 = 2;
 pub(crate) enum Error {
     Env(EnvError),
     Wrappers(WrappersError),
+    Agents(AgentsError),
+}
+
+impl From<AgentsError> for Error {
+    fn from(e: AgentsError) -> Self {
+        match e {
+            AgentsError::Wrappers(w) => w.into(),
+            other => Error::Agents(other),
+        }
+    }
 }
 
 impl From<EnvError> for Error {
@@ -69,6 +80,15 @@ pub(crate) fn to_py(e: impl Into<Error>) -> PyErr {
                 WrappersError::InvalidGroup(_) => InvalidInputError::new_err(message),
                 WrappersError::Policy { .. } => PolicyError::new_err(message),
                 WrappersError::PolicyNotFound(path) => missing_file(message, path),
+            }
+        }
+        Error::Agents(e) => {
+            let message = e.to_string();
+            match e {
+                AgentsError::Wrappers(w) => to_py(w),
+                AgentsError::InvalidOption(_) => InvalidInputError::new_err(message),
+                AgentsError::Checkpoint { .. } => InvalidStateError::new_err(message),
+                AgentsError::Io { .. } | AgentsError::Diverged(_) => EquigymIOError::new_err(message),
             }
         }
     }

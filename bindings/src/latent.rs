@@ -74,15 +74,21 @@ impl DiffusionPolicy {
     fn metadata(&self) -> std::collections::HashMap<String, String> {
         self.inner.metadata.clone()
     }
-    /// Denoise: `obs` (B, obs_dim) and `latent` (B, action_dim) -> chunks (B, chunk_len, 10).
-    #[pyo3(signature = (obs, latent, steps=None))]
+    /// Denoise: `obs` (B, obs_dim) and `latent` (B, action_dim) -> chunks (B, chunk_len, 10);
+    /// `precision` "f32" (default) or "f64" is the network's arithmetic.
+    #[pyo3(signature = (obs, latent, steps=None, precision=None))]
     fn sample<'py>(
         &self,
         py: Python<'py>,
         obs: PyReadonlyArrayDyn<'py, f64>,
         latent: PyReadonlyArrayDyn<'py, f64>,
         steps: Option<usize>,
+        precision: Option<&str>,
     ) -> PyResult<Bound<'py, PyArray3<f64>>> {
+        let precision: equigym_wrappers::edp::Precision = match precision {
+            Some(p) => p.parse().map_err(sym_err)?,
+            None => self.inner.precision,
+        };
         let (od, ad) = (self.inner.obs_dim(), self.inner.action_dim());
         let (os, ls) = (obs.shape().to_vec(), latent.shape().to_vec());
         if os.len() != 2 || ls.len() != 2 || os[1] != od || ls[1] != ad || os[0] != ls[0] {
@@ -95,7 +101,7 @@ impl DiffusionPolicy {
         let steps = steps.unwrap_or(self.inner.default_ddim_steps);
         let mut out = vec![0.0; w.len()];
         let policy = self.inner.clone();
-        py.detach(|| policy.sample(&o, &w, steps, &mut out)).map_err(to_py)?;
+        py.detach(|| policy.sample_with(precision, &o, &w, steps, &mut out)).map_err(to_py)?;
         let chunk = self.inner.chunk_len;
         let arr = Array3::from_shape_vec((ls[0], chunk, ad / chunk), out).map_err(|e| invalid_input(e.to_string()))?;
         Ok(arr.into_pyarray(py))

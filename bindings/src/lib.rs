@@ -12,6 +12,7 @@
 mod errors;
 mod latent;
 mod options;
+mod steer;
 mod symmetry;
 mod vector;
 
@@ -254,6 +255,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<latent::LatentVecEnv>()?;
     m.add_class::<vector::VecEnv>()?;
     m.add_function(wrap_pyfunction!(symmetry::measure_symmetry_breaking, m)?)?;
+    m.add_function(wrap_pyfunction!(steer::steer_run, m)?)?;
+    m.add_function(wrap_pyfunction!(steer::steer_gradcase, m)?)?;
     m.add("TASK_IDS", TASK_IDS.to_vec())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

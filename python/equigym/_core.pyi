@@ -1,7 +1,7 @@
 """Type stubs for the Rust extension module ``equigym._core``."""
 
 from os import PathLike
-from typing import Any, final
+from typing import Any, Literal, final
 
 import numpy as np
 import numpy.typing as npt
@@ -149,7 +149,11 @@ class DiffusionPolicy:
     @property
     def metadata(self) -> dict[str, str]: ...
     def sample(
-        self, obs: npt.NDArray[np.float64], latent: npt.NDArray[np.float64], steps: int | None = None
+        self,
+        obs: npt.NDArray[np.float64],
+        latent: npt.NDArray[np.float64],
+        steps: int | None = None,
+        precision: Literal["f32", "f64"] | None = None,
     ) -> npt.NDArray[np.float64]: ...
 
 @final
@@ -295,3 +299,25 @@ class LatentVecEnv:
     def chunk_len(self) -> int: ...
     @property
     def bound(self) -> float: ...
+
+def steer_run(
+    method: Literal["dsrl", "equi", "approx"],
+    task: str,
+    seed: int,
+    steps: int,
+    out: str | PathLike[str],
+    *,
+    threads: int = 1,
+    preset: Literal["cpu", "paper"] = "cpu",
+    joint_limits: bool = True,
+    controller: Literal["joint", "cartesian"] | None = None,
+    eval_every: int = 2000,
+    eval_episodes: int = 50,
+    policy: str | PathLike[str] | None = None,
+    ent_init: float | None = None,
+    horizon: int | None = None,
+    progress: bool = False,
+    stop_after_evals: int | None = None,
+) -> dict[str, Any]: ...
+
+def steer_gradcase(method: Literal["dsrl", "equi", "approx"], task: str = "lift", seed: int = 0, rows: int = 6) -> dict[str, Any]: ...

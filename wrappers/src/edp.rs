@@ -5,11 +5,19 @@
 //! The file holds a plain MLP (the escnn model's exported linear layers, already permuted into
 //! the task's natural field order), the DDPM schedule (`alphas_cumprod`), the timestep
 //! embedding table and the normalisation. Sampling never clips the predicted clean sample:
-//! elementwise clipping would break equivariance. Arithmetic is float64 throughout.
+//! elementwise clipping would break equivariance.
+//!
+//! The network runs on the shared kernels of `equigym-nn` ([`equigym_nn::gemm`]): float32 by
+//! default ([`Precision::F32`], what the latent environments use), float64 on request
+//! ([`Precision::F64`], for parity with PyTorch in float64). Either way every row's chunk is
+//! summed in one fixed order, so it is bit for bit the same whatever the batch size, the row
+//! split across threads or the CPU's vector width (see the `equigym-nn` docs). The DDIM update
+//! and the (de)normalisation stay in float64.
 
 use std::path::Path;
 
 use equigym_envs::Layout;
+use equigym_nn::{gemm, ops, Real, Trans};
 use safetensors::{Dtype, SafeTensors};
 
 use crate::error::{Error, Result};
@@ -17,11 +25,34 @@ use crate::error::{Error, Result};
 /// File format tag written by the trainer.
 pub const FORMAT: &str = "equigym-edp-1";
 
+/// Arithmetic of the network (the DDIM update is float64 either way).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Precision {
+    /// float32 network (the default).
+    #[default]
+    F32,
+    /// float64 network (parity tests).
+    F64,
+}
+
+impl std::str::FromStr for Precision {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "f32" | "float32" => Ok(Precision::F32),
+            "f64" | "float64" => Ok(Precision::F64),
+            other => Err(equigym_envs::EnvError::InvalidConfig(format!("precision must be 'f32' or 'f64', got '{other}'")).into()),
+        }
+    }
+}
+
 #[derive(Debug)]
 struct Dense {
-    /// Row-major (out, in).
-    weight: Vec<f64>,
-    bias: Vec<f64>,
+    /// Row-major (in, out): the layout `x W` reads, in both precisions.
+    wt64: Vec<f64>,
+    wt32: Vec<f32>,
+    bias64: Vec<f64>,
+    bias32: Vec<f32>,
     n_in: usize,
     n_out: usize,
 }
@@ -48,6 +79,8 @@ pub struct DiffusionPolicy {
     pub default_ddim_steps: usize,
     pub group: String,
     pub metadata: std::collections::HashMap<String, String>,
+    /// Arithmetic of [`DiffusionPolicy::sample`] (set before sharing the policy).
+    pub precision: Precision,
 }
 
 fn bad(path: &str, reason: impl Into<String>) -> Error {
@@ -184,9 +217,13 @@ impl DiffusionPolicy {
             }
             let weight = tensor(&st, origin, &format!("layer{i}.weight"), &[n_out, n_in])?;
             let bias = tensor(&st, origin, &format!("layer{i}.bias"), &[n_out])?;
+            let mut wt64 = vec![0.0; n_in * n_out];
+            equigym_nn::gemm::transpose(n_out, n_in, &weight, &mut wt64);
             layers.push(Dense {
-                weight,
-                bias,
+                wt32: wt64.iter().map(|v| *v as f32).collect(),
+                bias32: bias.iter().map(|v| *v as f32).collect(),
+                wt64,
+                bias64: bias,
                 n_in,
                 n_out,
             });
@@ -230,6 +267,7 @@ impl DiffusionPolicy {
             default_ddim_steps,
             group: metadata.get("group").cloned().unwrap_or_default(),
             metadata,
+            precision: Precision::default(),
         };
         if policy
             .obs_scale
@@ -285,6 +323,11 @@ impl DiffusionPolicy {
     /// Denoise a batch: `obs` (B x obs_dim) and `latent` (B x action_dim) -> chunks
     /// (B x action_dim, absolute actions), with `steps` deterministic DDIM steps.
     pub fn sample(&self, obs: &[f64], latent: &[f64], steps: usize, out: &mut [f64]) -> Result<()> {
+        self.sample_with(self.precision, obs, latent, steps, out)
+    }
+
+    /// [`DiffusionPolicy::sample`] with the network in the given precision.
+    pub fn sample_with(&self, precision: Precision, obs: &[f64], latent: &[f64], steps: usize, out: &mut [f64]) -> Result<()> {
         let (od, ad) = (self.obs_dim(), self.action_dim());
         let b = latent.len() / ad.max(1);
         let check =
@@ -315,7 +358,8 @@ impl DiffusionPolicy {
         }
         let mut x = latent.to_vec();
         let mut eps = vec![0.0; b * ad];
-        let mut scratch = (Vec::new(), Vec::new());
+        let mut s32 = Scratch::<f32>::default();
+        let mut s64 = Scratch::<f64>::default();
         let ts = self.ddim_timesteps(steps);
         for (k, &t) in ts.iter().enumerate() {
             let ab = self.alphas_cumprod[t];
@@ -326,7 +370,10 @@ impl DiffusionPolicy {
                 row[od..od + ad].copy_from_slice(&x[r * ad..(r + 1) * ad]);
                 row[od + ad..].copy_from_slice(emb);
             }
-            self.forward(&input, b, &mut eps, &mut scratch);
+            match precision {
+                Precision::F32 => self.forward(&input, b, &mut eps, &mut s32, |l| (&l.wt32, &l.bias32)),
+                Precision::F64 => self.forward(&input, b, &mut eps, &mut s64, |l| (&l.wt64, &l.bias64)),
+            }
             let (sa, s1a) = (ab.sqrt(), (1.0 - ab).sqrt());
             let (sp, s1p) = (ab_prev.sqrt(), (1.0 - ab_prev).sqrt());
             for (xi, ei) in x.iter_mut().zip(&eps) {
@@ -342,98 +389,41 @@ impl DiffusionPolicy {
         Ok(())
     }
 
-    /// The MLP on a batch of `rows` inputs (row-major), ReLU between layers.
-    fn forward(
+    /// The MLP on a batch of `rows` inputs (row-major), ReLU between layers, in `T`; every
+    /// output is summed in one fixed order ([`equigym_nn::gemm`]), so a row's result does not
+    /// depend on the batch it is in.
+    fn forward<T: Real>(
         &self,
         input: &[f64],
         rows: usize,
         out: &mut [f64],
-        scratch: &mut (Vec<f64>, Vec<f64>),
+        s: &mut Scratch<T>,
+        params: impl Fn(&Dense) -> (&Vec<T>, &Vec<T>),
     ) {
-        let (a, b) = scratch;
+        let (a, b) = (&mut s.a, &mut s.b);
         a.clear();
-        a.extend_from_slice(input);
+        a.extend(input.iter().map(|v| T::from_f64(*v)));
         let last = self.layers.len() - 1;
         for (i, l) in self.layers.iter().enumerate() {
+            let (wt, bias) = params(l);
             b.clear();
-            b.resize(rows * l.n_out, 0.0);
-            for r in 0..rows {
-                b[r * l.n_out..(r + 1) * l.n_out].copy_from_slice(&l.bias);
-            }
-            // Every output is dot(weight row, input row) with one fixed summation order, so a
-            // row's result is bit for bit the same whatever the batch size or how a batch is
-            // split across threads (a single env and a vector env give identical chunks).
-            // Four rows share each weight row while it is in cache.
-            let mut r = 0;
-            while r + 4 <= rows {
-                let x = [
-                    &a[r * l.n_in..(r + 1) * l.n_in],
-                    &a[(r + 1) * l.n_in..(r + 2) * l.n_in],
-                    &a[(r + 2) * l.n_in..(r + 3) * l.n_in],
-                    &a[(r + 3) * l.n_in..(r + 4) * l.n_in],
-                ];
-                for (o, w) in l.weight.chunks_exact(l.n_in).enumerate() {
-                    let d = dot4(w, x);
-                    for k in 0..4 {
-                        b[(r + k) * l.n_out + o] += d[k];
-                    }
-                }
-                r += 4;
-            }
-            for r in r..rows {
-                let x = &a[r * l.n_in..(r + 1) * l.n_in];
-                for (o, w) in l.weight.chunks_exact(l.n_in).enumerate() {
-                    b[r * l.n_out + o] += dot(w, x);
-                }
-            }
+            b.resize(rows * l.n_out, T::ZERO);
+            ops::fill_bias(b, bias);
+            gemm(rows, l.n_out, l.n_in, a, Trans::N, wt, b, true);
             if i < last {
-                b.iter_mut().for_each(|v| *v = v.max(0.0));
+                ops::relu(b);
             }
             std::mem::swap(a, b);
         }
-        out.copy_from_slice(&a[..out.len()]);
+        for (o, v) in out.iter_mut().zip(a.iter()) {
+            *o = v.to_f64();
+        }
     }
 }
 
-/// Four dot products of `w` with four rows, each summed exactly as [`dot`] sums it.
-fn dot4(w: &[f64], x: [&[f64]; 4]) -> [f64; 4] {
-    let mut acc = [[0.0f64; 8]; 4];
-    let n = w.len() / 8 * 8;
-    let mut i = 0;
-    while i < n {
-        let wc = &w[i..i + 8];
-        for (row, acc) in x.iter().zip(acc.iter_mut()) {
-            let xc = &row[i..i + 8];
-            for k in 0..8 {
-                acc[k] += wc[k] * xc[k];
-            }
-        }
-        i += 8;
-    }
-    let mut out = [0.0; 4];
-    for ((o, acc), row) in out.iter_mut().zip(&acc).zip(x.iter()) {
-        let mut sum = acc.iter().sum::<f64>();
-        for (a, b) in w[n..].iter().zip(&row[n..]) {
-            sum += a * b;
-        }
-        *o = sum;
-    }
-    out
-}
-
-/// Dot product with eight independent accumulators (so the compiler can vectorise it).
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    let mut acc = [0.0f64; 8];
-    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
-    let (ra, rb) = (ca.remainder(), cb.remainder());
-    for (x, y) in ca.zip(cb) {
-        for k in 0..8 {
-            acc[k] += x[k] * y[k];
-        }
-    }
-    let mut sum = acc.iter().sum::<f64>();
-    for (x, y) in ra.iter().zip(rb) {
-        sum += x * y;
-    }
-    sum
+/// Activation buffers of one sampling call.
+#[derive(Default)]
+struct Scratch<T> {
+    a: Vec<T>,
+    b: Vec<T>,
 }

@@ -1,0 +1,499 @@
+//! Feed-forward networks over one flat parameter vector: plain and equivariant linear layers
+//! (optionally with a residual plain path, RPP), LayerNorm, Tanh, ReLU, and the invariant
+//! group-pooling head of a critic. Forward keeps a [`Tape`]; backward adds parameter gradients
+//! into a flat gradient vector and returns the input gradient when asked.
+//!
+//! Parameters live in `Net::params`; [`Net::expand`] turns them into the dense matrices the
+//! forward and backward passes use (after construction, every optimiser step and every load).
+//! A plain layer stores its weight as `n_in x n_out` (the layout `x W` reads), so its expanded
+//! matrix is a copy; an equivariant layer expands its basis coefficients (see [`crate::equi`]).
+
+use equigym_nn::gemm::transpose;
+use equigym_nn::{gemm, ops, Real, Trans};
+use serde::{Deserialize, Serialize};
+
+use crate::equi::Basis;
+use crate::fourier::{Circulant, ORDER};
+use crate::rng::Rng;
+
+/// Weight decay of the equivariant path of an RPP layer (Finzi et al. 2021, the paper).
+pub const RPP_EQUI_DECAY: f64 = 1e-5;
+/// Weight decay of the plain path of an RPP layer.
+pub const RPP_PLAIN_DECAY: f64 = 1e-2;
+
+/// Where a linear layer's parameters live and how they expand.
+#[derive(Clone, Debug)]
+pub enum LinearKind {
+    /// Weight (`n_in x n_out`) at `w`, bias (`n_out`) at `b`.
+    Dense { w: usize, b: usize },
+    /// Basis coefficients at `w` (weights then biases); `plain`: an RPP path's (weight, bias).
+    Equi { basis: std::sync::Arc<Basis>, w: usize, plain: Option<(usize, usize)> },
+}
+
+/// A linear layer and its expanded matrices.
+#[derive(Clone, Debug)]
+pub struct Linear<T> {
+    pub n_in: usize,
+    pub n_out: usize,
+    pub kind: LinearKind,
+    /// `n_in x n_out` (forward).
+    wt: Vec<T>,
+    /// `n_out x n_in` (input gradient).
+    w: Vec<T>,
+    bias: Vec<T>,
+}
+
+/// A layer of a [`Net`].
+#[derive(Clone, Debug)]
+pub enum Layer<T> {
+    Linear(Linear<T>),
+    /// LayerNorm over `n` features, gain at `g`, shift at `s`.
+    LayerNorm { n: usize, g: usize, s: usize },
+    Tanh,
+    Relu,
+    /// Critic head: `q = b + sum_f w_f max_a h(f, a)` over `fields` regular fields of size
+    /// `order` (invariant), plus an RPP plain path `b' + v . h` when `plain` is given.
+    PoolHead { fields: usize, order: usize, w: usize, b: usize, plain: Option<(usize, usize)> },
+    /// A regular -> regular C8-equivariant layer run in the Fourier basis ([`crate::fourier`]).
+    Circulant(Circulant<T>),
+}
+
+/// Activations kept by a forward pass for the backward pass.
+#[derive(Clone, Debug, Default)]
+pub struct Tape<T> {
+    pub rows: usize,
+    /// `acts[0]` is the input, `acts[l + 1]` the output of layer `l`.
+    pub acts: Vec<Vec<T>>,
+    /// LayerNorm: normalised values, then 1/std per row (concatenated).
+    aux: Vec<Vec<T>>,
+    /// PoolHead: the argmax position of each field, per row.
+    argmax: Vec<Vec<u32>>,
+}
+
+impl<T: Real> Tape<T> {
+    pub fn output(&self) -> &[T] {
+        self.acts.last().map_or(&[], |v| &v[..])
+    }
+}
+
+/// A network: layers over one parameter vector.
+#[derive(Clone, Debug)]
+pub struct Net<T> {
+    pub n_in: usize,
+    pub n_out: usize,
+    pub layers: Vec<Layer<T>>,
+    pub params: Vec<T>,
+    /// (end, weight decay) segments of `params`, in order (RPP gives two strengths).
+    pub decay: Vec<(usize, f64)>,
+}
+
+/// Builds a [`Net`] layer by layer, allocating and initialising parameters.
+pub struct NetBuilder<'a, T> {
+    net: Net<T>,
+    width: usize,
+    rng: &'a mut Rng,
+    /// Per parameter: its weight decay (turned into segments by `build`).
+    decay_of: Vec<f64>,
+}
+
+impl<'a, T: Real> NetBuilder<'a, T> {
+    pub fn new(n_in: usize, rng: &'a mut Rng) -> Self {
+        Self { net: Net { n_in, n_out: n_in, layers: Vec::new(), params: Vec::new(), decay: Vec::new() }, width: n_in, rng, decay_of: Vec::new() }
+    }
+
+    fn alloc(&mut self, n: usize, bound: f64, decay: f64) -> usize {
+        let at = self.net.params.len();
+        for _ in 0..n {
+            let v = if bound == 0.0 { 0.0 } else { (2.0 * self.rng.uniform() - 1.0) * bound };
+            self.net.params.push(T::from_f64(v));
+        }
+        self.decay_of.extend(std::iter::repeat_n(decay, n));
+        at
+    }
+
+    fn alloc_const(&mut self, n: usize, value: f64, decay: f64) -> usize {
+        let at = self.net.params.len();
+        self.net.params.extend(std::iter::repeat_n(T::from_f64(value), n));
+        self.decay_of.extend(std::iter::repeat_n(decay, n));
+        at
+    }
+
+    /// A plain linear layer (PyTorch's default initialisation: U(+-1/sqrt(fan_in))).
+    pub fn dense(mut self, n_out: usize) -> Self {
+        let n_in = self.width;
+        let bound = 1.0 / (n_in as f64).sqrt();
+        let w = self.alloc(n_in * n_out, bound, 0.0);
+        let b = self.alloc(n_out, bound, 0.0);
+        self.push_linear(LinearKind::Dense { w, b }, n_out);
+        self
+    }
+
+    /// An equivariant linear layer with this basis (coefficients U(+-1/sqrt(n_in)), zero bias),
+    /// with a parallel plain path when `residual` (RPP: decays [`RPP_EQUI_DECAY`] and
+    /// [`RPP_PLAIN_DECAY`]).
+    pub fn equi(mut self, basis: std::sync::Arc<Basis>, residual: bool) -> Self {
+        debug_assert_eq!(basis.n_in, self.width);
+        let n_out = basis.n_out;
+        let bound = 1.0 / (basis.fan_in() as f64).sqrt();
+        let equi_decay = if residual { RPP_EQUI_DECAY } else { 0.0 };
+        let w = self.alloc(basis.n_weights, bound, equi_decay);
+        self.alloc_const(basis.n_bias, 0.0, equi_decay);
+        let plain = residual.then(|| {
+            let pw = self.alloc(basis.n_in * n_out, bound, RPP_PLAIN_DECAY);
+            let pb = self.alloc(n_out, bound, RPP_PLAIN_DECAY);
+            (pw, pb)
+        });
+        self.push_linear(LinearKind::Equi { basis, w, plain }, n_out);
+        self
+    }
+
+    fn push_linear(&mut self, kind: LinearKind, n_out: usize) {
+        let n_in = self.width;
+        self.net.layers.push(Layer::Linear(Linear {
+            n_in,
+            n_out,
+            kind,
+            wt: vec![T::ZERO; n_in * n_out],
+            w: vec![T::ZERO; n_in * n_out],
+            bias: vec![T::ZERO; n_out],
+        }));
+        self.width = n_out;
+    }
+
+    /// A regular -> regular equivariant layer in the Fourier basis (`fields` output fields).
+    pub fn circulant(mut self, fields: usize) -> Self {
+        let f_in = self.width / ORDER;
+        let bound = Circulant::<T>::init_scale() / (self.width as f64).sqrt();
+        let w = self.alloc(Circulant::<T>::num_weights(f_in, fields), bound, 0.0);
+        let b = self.alloc_const(fields, 0.0, 0.0);
+        self.net.layers.push(Layer::Circulant(Circulant::new(f_in, fields, w, b)));
+        self.width = fields * ORDER;
+        self
+    }
+
+    pub fn layer_norm(mut self) -> Self {
+        let n = self.width;
+        let g = self.alloc_const(n, 1.0, 0.0);
+        let s = self.alloc_const(n, 0.0, 0.0);
+        self.net.layers.push(Layer::LayerNorm { n, g, s });
+        self
+    }
+
+    pub fn tanh(mut self) -> Self {
+        self.net.layers.push(Layer::Tanh);
+        self
+    }
+
+    pub fn relu(mut self) -> Self {
+        self.net.layers.push(Layer::Relu);
+        self
+    }
+
+    /// The invariant critic head over regular fields (one output).
+    pub fn pool_head(mut self, order: usize, residual: bool) -> Self {
+        let fields = self.width / order;
+        let bound = 1.0 / (fields as f64).sqrt();
+        let w = self.alloc(fields, bound, 0.0);
+        let b = self.alloc(1, bound, 0.0);
+        let plain = residual.then(|| {
+            let pbound = 1.0 / (self.width as f64).sqrt();
+            let pw = self.alloc(self.width, pbound, RPP_PLAIN_DECAY);
+            let pb = self.alloc(1, pbound, RPP_PLAIN_DECAY);
+            (pw, pb)
+        });
+        self.net.layers.push(Layer::PoolHead { fields, order, w, b, plain });
+        self.width = 1;
+        self
+    }
+
+    pub fn build(mut self) -> Net<T> {
+        self.net.n_out = self.width;
+        let mut segments: Vec<(usize, f64)> = Vec::new();
+        for (i, d) in self.decay_of.iter().enumerate() {
+            match segments.last_mut() {
+                Some((end, last)) if *last == *d => *end = i + 1,
+                _ => segments.push((i + 1, *d)),
+            }
+        }
+        self.net.decay = segments;
+        self.net.expand();
+        self.net
+    }
+}
+
+impl<T: Real> Net<T> {
+    pub fn num_params(&self) -> usize {
+        self.params.len()
+    }
+
+    /// Expand the parameters into the layers' dense matrices (after every change of `params`).
+    pub fn expand(&mut self) {
+        let params = &self.params;
+        for layer in &mut self.layers {
+            if let Layer::Circulant(c) = layer {
+                c.expand(params);
+                continue;
+            }
+            let Layer::Linear(l) = layer else { continue };
+            let (n_in, n_out) = (l.n_in, l.n_out);
+            match &l.kind {
+                LinearKind::Dense { w, b } => {
+                    l.wt.copy_from_slice(&params[*w..*w + n_in * n_out]);
+                    l.bias.copy_from_slice(&params[*b..*b + n_out]);
+                }
+                LinearKind::Equi { basis, w, plain } => {
+                    match plain {
+                        Some((pw, pb)) => {
+                            l.wt.copy_from_slice(&params[*pw..*pw + n_in * n_out]);
+                            l.bias.copy_from_slice(&params[*pb..*pb + n_out]);
+                        }
+                        None => {
+                            l.wt.fill(T::ZERO);
+                            l.bias.fill(T::ZERO);
+                        }
+                    }
+                    for &(d, p, c) in &basis.weights {
+                        let d = d as usize;
+                        l.wt[d] += params[*w + p as usize] * T::from_f64(c);
+                    }
+                    let bias_at = *w + basis.n_weights;
+                    for &(o, p) in &basis.bias {
+                        l.bias[o as usize] += params[bias_at + p as usize];
+                    }
+                }
+            }
+            transpose(n_in, n_out, &l.wt, &mut l.w);
+        }
+    }
+
+    /// Forward a batch (`rows x n_in`, row-major); the output is `tape.output()`.
+    pub fn forward(&self, x: &[T], rows: usize, tape: &mut Tape<T>) {
+        let nl = self.layers.len();
+        tape.rows = rows;
+        tape.acts.resize_with(nl + 1, Vec::new);
+        tape.aux.resize_with(nl, Vec::new);
+        tape.argmax.resize_with(nl, Vec::new);
+        tape.acts[0].clear();
+        tape.acts[0].extend_from_slice(&x[..rows * self.n_in]);
+        let mut width = self.n_in;
+        for (l, layer) in self.layers.iter().enumerate() {
+            let (before, after) = tape.acts.split_at_mut(l + 1);
+            let input = &before[l];
+            let out = &mut after[0];
+            match layer {
+                Layer::Linear(lin) => {
+                    out.resize(rows * lin.n_out, T::ZERO);
+                    ops::fill_bias(out, &lin.bias);
+                    gemm(rows, lin.n_out, lin.n_in, input, Trans::N, &lin.wt, out, true);
+                    width = lin.n_out;
+                }
+                Layer::LayerNorm { n, g, s } => {
+                    out.clear();
+                    out.extend_from_slice(input);
+                    let aux = &mut tape.aux[l];
+                    aux.resize(rows * n + rows, T::ZERO);
+                    let (xhat, rstd) = aux.split_at_mut(rows * n);
+                    ops::layer_norm(out, *n, &self.params[*g..*g + n], &self.params[*s..*s + n], xhat, rstd);
+                }
+                Layer::Tanh => {
+                    out.clear();
+                    out.extend_from_slice(input);
+                    ops::tanh(out);
+                }
+                Layer::Circulant(c) => {
+                    let mut yhat = Vec::new();
+                    c.forward(&self.params, input, rows, out, &mut tape.aux[l], &mut yhat);
+                    width = c.f_out * ORDER;
+                }
+                Layer::Relu => {
+                    out.clear();
+                    out.extend_from_slice(input);
+                    ops::relu(out);
+                }
+                Layer::PoolHead { fields, order, w, b, plain } => {
+                    out.resize(rows, T::ZERO);
+                    let am = &mut tape.argmax[l];
+                    am.resize(rows * fields, 0);
+                    for r in 0..rows {
+                        let h = &input[r * width..(r + 1) * width];
+                        let mut q = self.params[*b];
+                        for f in 0..*fields {
+                            let field = &h[f * order..(f + 1) * order];
+                            let mut best = 0;
+                            for a in 1..*order {
+                                if field[a] > field[best] {
+                                    best = a;
+                                }
+                            }
+                            am[r * fields + f] = best as u32;
+                            q += field[best] * self.params[*w + f];
+                        }
+                        if let Some((pw, pb)) = plain {
+                            let mut s = self.params[*pb];
+                            for (i, v) in h.iter().enumerate() {
+                                s += *v * self.params[pw + i];
+                            }
+                            q += s;
+                        }
+                        out[r] = q;
+                    }
+                    width = 1;
+                }
+            }
+        }
+    }
+
+    /// Backward from `dy` (gradient of the output, `rows x n_out`). Adds parameter gradients
+    /// into `grads` when given; returns the input gradient when `want_dx`.
+    pub fn backward(&self, tape: &Tape<T>, dy: &[T], mut grads: Option<&mut [T]>, want_dx: bool, scratch: &mut Vec<T>) -> Option<Vec<T>> {
+        let rows = tape.rows;
+        let mut d = dy[..rows * self.n_out].to_vec();
+        let mut next = Vec::new();
+        for (l, layer) in self.layers.iter().enumerate().rev() {
+            let input = &tape.acts[l];
+            let output = &tape.acts[l + 1];
+            let need_dx = want_dx || l > 0;
+            match layer {
+                Layer::Linear(lin) => {
+                    let (n_in, n_out) = (lin.n_in, lin.n_out);
+                    if let Some(g) = grads.as_deref_mut() {
+                        match &lin.kind {
+                            LinearKind::Dense { w, b } => {
+                                gemm(n_in, n_out, rows, input, Trans::T, &d, &mut g[*w..*w + n_in * n_out], true);
+                                ops::add_column_sums(&d, &mut g[*b..*b + n_out]);
+                            }
+                            LinearKind::Equi { basis, w, plain } => {
+                                scratch.clear();
+                                scratch.resize(n_in * n_out + n_out, T::ZERO);
+                                let (gw, gb) = scratch.split_at_mut(n_in * n_out);
+                                gemm(n_in, n_out, rows, input, Trans::T, &d, gw, false);
+                                ops::add_column_sums(&d, gb);
+                                for &(e, p, c) in &basis.weights {
+                                    let i = *w + p as usize;
+                                    g[i] += gw[e as usize] * T::from_f64(c);
+                                }
+                                let bias_at = *w + basis.n_weights;
+                                for &(o, p) in &basis.bias {
+                                    g[bias_at + p as usize] += gb[o as usize];
+                                }
+                                if let Some((pw, pb)) = plain {
+                                    for (gi, v) in g[*pw..*pw + n_in * n_out].iter_mut().zip(gw.iter()) {
+                                        *gi += *v;
+                                    }
+                                    for (gi, v) in g[*pb..*pb + n_out].iter_mut().zip(gb.iter()) {
+                                        *gi += *v;
+                                    }
+                                }
+                            }
+                        }
+                    }
+                    if need_dx {
+                        next.clear();
+                        next.resize(rows * n_in, T::ZERO);
+                        gemm(rows, n_in, n_out, &d, Trans::N, &lin.w, &mut next, false);
+                        std::mem::swap(&mut d, &mut next);
+                    }
+                }
+                Layer::LayerNorm { n, g, s } => {
+                    let aux = &tape.aux[l];
+                    let (xhat, rstd) = aux.split_at(rows * n);
+                    let gain = &self.params[*g..*g + n];
+                    match grads.as_deref_mut() {
+                        Some(gr) => {
+                            // gain and shift are adjacent (g, then s = g + n)
+                            debug_assert_eq!(*s, *g + n);
+                            let (dg, ds) = gr[*g..*s + n].split_at_mut(*n);
+                            ops::layer_norm_backward(&mut d, *n, gain, xhat, rstd, Some((dg, ds)));
+                        }
+                        None => ops::layer_norm_backward(&mut d, *n, gain, xhat, rstd, None),
+                    }
+                }
+                Layer::Tanh => ops::tanh_backward(output, &mut d),
+                Layer::Circulant(c) => {
+                    let (mut dyhat, mut gm) = (Vec::new(), Vec::new());
+                    c.backward(&tape.aux[l], &d, rows, grads.as_deref_mut(), need_dx.then_some(&mut next), &mut dyhat, &mut gm);
+                    if need_dx {
+                        std::mem::swap(&mut d, &mut next);
+                    }
+                }
+                Layer::Relu => ops::relu_backward(output, &mut d),
+                Layer::PoolHead { fields, order, w, b, plain } => {
+                    let width = fields * order;
+                    let am = &tape.argmax[l];
+                    if let Some(g) = grads.as_deref_mut() {
+                        for r in 0..rows {
+                            let h = &input[r * width..(r + 1) * width];
+                            for f in 0..*fields {
+                                let a = am[r * fields + f] as usize;
+                                g[*w + f] += d[r] * h[f * order + a];
+                            }
+                            g[*b] += d[r];
+                            if let Some((pw, pb)) = plain {
+                                for (i, v) in h.iter().enumerate() {
+                                    g[pw + i] += d[r] * *v;
+                                }
+                                g[*pb] += d[r];
+                            }
+                        }
+                    }
+                    if need_dx {
+                        next.clear();
+                        next.resize(rows * width, T::ZERO);
+                        for r in 0..rows {
+                            let row = &mut next[r * width..(r + 1) * width];
+                            if let Some((pw, _)) = plain {
+                                for (i, v) in row.iter_mut().enumerate() {
+                                    *v = d[r] * self.params[pw + i];
+                                }
+                            }
+                            for f in 0..*fields {
+                                let a = am[r * fields + f] as usize;
+                                row[f * order + a] += d[r] * self.params[*w + f];
+                            }
+                        }
+                        std::mem::swap(&mut d, &mut next);
+                    }
+                }
+            }
+            if l == 0 && !want_dx {
+                return None;
+            }
+        }
+        Some(d)
+    }
+
+    /// Convert to another float type (the f64 twin of an f32 net for parity tests).
+    pub fn cast<U: Real>(&self) -> Net<U> {
+        let layers = self
+            .layers
+            .iter()
+            .map(|l| match l {
+                Layer::Linear(lin) => Layer::Linear(Linear {
+                    n_in: lin.n_in,
+                    n_out: lin.n_out,
+                    kind: lin.kind.clone(),
+                    wt: vec![U::ZERO; lin.wt.len()],
+                    w: vec![U::ZERO; lin.w.len()],
+                    bias: vec![U::ZERO; lin.bias.len()],
+                }),
+                Layer::LayerNorm { n, g, s } => Layer::LayerNorm { n: *n, g: *g, s: *s },
+                Layer::Tanh => Layer::Tanh,
+                Layer::Relu => Layer::Relu,
+                Layer::PoolHead { fields, order, w, b, plain } => Layer::PoolHead { fields: *fields, order: *order, w: *w, b: *b, plain: *plain },
+                Layer::Circulant(c) => Layer::Circulant(Circulant::new(c.f_in, c.f_out, c.w, c.b)),
+            })
+            .collect();
+        let mut net = Net { n_in: self.n_in, n_out: self.n_out, layers, params: self.params.iter().map(|v| U::from_f64(v.to_f64())).collect(), decay: self.decay.clone() };
+        net.expand();
+        net
+    }
+
+    /// The parameters as plain bytes-friendly values (for checkpoints).
+    pub fn params_f64(&self) -> Vec<f64> {
+        self.params.iter().map(|v| v.to_f64()).collect()
+    }
+}
+
+/// A network's parameters in a checkpoint.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SavedParams<T>(pub Vec<T>);

@@ -1,0 +1,655 @@
+//! One steering run: collect with 4 latent-action environments, train SAC, evaluate, log,
+//! checkpoint, resume.
+//!
+//! # Protocol (`baselines/steer.py`'s)
+//! - Steps are primitive environment steps: a latent step runs a 4-action chunk, so one vector
+//!   step of 4 environments is 16 env steps; SB3's `num_timesteps` counts latent transitions.
+//! - Warm-up: while fewer than `warmup` transitions were collected, the latent action is
+//!   N(0, I) clipped to the bound (the base policy's own noise); training starts after.
+//! - After each vector step: `utd x n_envs` gradient steps on minibatches of `batch`.
+//! - Evaluation whenever the env-step count reaches the next multiple of `eval_every` (the first
+//!   after the first vector step): `eval_episodes` episodes of the stochastic actor, reset with
+//!   seeds 10000 + k, an episode succeeds if any step succeeds and stops there. Episodes run
+//!   batched; each has its own noise stream, so the result does not depend on the batching.
+//! - `log.csv`: `env_steps, success_rate, mean_q, seconds`; mean Q is min over the twin critics,
+//!   averaged over 256 replay transitions.
+//!
+//! One difference in order: SB3 evaluates inside its step callback, before that step's
+//! transitions are stored and trained on; here the evaluation comes after them, at a point
+//! where the whole run state can be checkpointed.
+//!
+//! # Reproducibility
+//! Everything random comes from the run's [`crate::rng`] streams; environments step on a rayon
+//! pool, but each environment's work and each row of every batched computation is independent
+//! of the others, so `--threads` changes nothing in the results. A checkpoint (written after
+//! every evaluation, atomically) holds networks, optimisers, replay, streams, the environments'
+//! full states and the log, so a killed run that is started again ends bit for bit where the
+//! uninterrupted run ends (the `seconds` column aside).
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use equigym_envs::EnvConfig;
+use equigym_envs::{Env, EnvError};
+use equigym_nn::Adam;
+use equigym_wrappers::latent::LatentStep;
+use equigym_wrappers::{DiffusionPolicy, Group, LatentEnv, TaskSymmetry, DEFAULT_LATENT_BOUND};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{io_err, Error, Result};
+use crate::models::{Arch, Method, Models, GROUP_ORDER};
+use crate::replay::{Batch, Replay, DEFAULT_CAPACITY};
+use crate::rng::{Rng, Stream};
+use crate::sac::{normals, Sac, SacConfig};
+
+/// Learning rate, Polyak rate and target entropy (DSRL's).
+pub const LEARNING_RATE: f64 = 3e-4;
+pub const TAU: f64 = 0.005;
+pub const TARGET_ENTROPY: f64 = 0.0;
+/// Discount: 0.999 for Square, 0.99 otherwise.
+pub const GAMMA: f64 = 0.99;
+pub const GAMMA_SQUARE: f64 = 0.999;
+/// Evaluation defaults of `baselines/steer.py`.
+pub const EVAL_EVERY: usize = 2000;
+pub const EVAL_EPISODES: usize = 50;
+pub const EVAL_SEED: u64 = 10_000;
+/// Replay transitions whose mean Q the log reports.
+pub const MEAN_Q_SAMPLE: usize = 256;
+/// Checkpoint format tag.
+pub const CHECKPOINT_FORMAT: &str = "equigym-agents-ckpt-1";
+const CHECKPOINT_FILE: &str = "checkpoint.bin";
+/// Shipped diffusion policies (`assets/edp/<task>.safetensors`) in the source tree.
+pub const DEFAULT_POLICY_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../assets/edp");
+
+/// Network width, depth and schedule (`baselines/steer.py`'s presets).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Preset {
+    pub name: String,
+    pub width: usize,
+    pub layers: usize,
+    pub utd: usize,
+    /// UTD for Square where it differs (the paper: 20 instead of 30).
+    pub utd_square: Option<usize>,
+    pub batch: usize,
+    pub n_envs: usize,
+    /// Warm-up transitions (latent steps summed over environments).
+    pub warmup: usize,
+    pub ent_init: f64,
+}
+
+impl Preset {
+    /// `cpu` (3 x 64, UTD 4, entropy coefficient from 0.2) or `paper` (3 x 2048, UTD 30/20).
+    pub fn named(name: &str) -> Result<Self> {
+        match name {
+            "cpu" => Ok(Self { name: name.into(), width: 64, layers: 3, utd: 4, utd_square: None, batch: 256, n_envs: 4, warmup: 1000, ent_init: 0.2 }),
+            "paper" => Ok(Self { name: name.into(), width: 2048, layers: 3, utd: 30, utd_square: Some(20), batch: 256, n_envs: 4, warmup: 6000, ent_init: 1.0 }),
+            other => Err(Error::InvalidOption(format!("preset must be 'cpu' or 'paper', got '{other}'"))),
+        }
+    }
+}
+
+/// Everything a run needs.
+#[derive(Clone, Debug)]
+pub struct RunConfig {
+    pub method: Method,
+    pub task: String,
+    pub seed: u64,
+    /// Primitive environment steps.
+    pub steps: usize,
+    pub out: PathBuf,
+    /// Threads for environments and denoising (0: one per core). Results do not depend on it.
+    pub threads: usize,
+    pub preset: Preset,
+    pub joint_limits: bool,
+    /// Arm controller: None keeps the environment's default, Some(true) Cartesian, Some(false) joint.
+    pub cartesian: Option<bool>,
+    pub eval_every: usize,
+    pub eval_episodes: usize,
+    /// Diffusion policy file (default: the shipped one for the task).
+    pub policy: Option<PathBuf>,
+    /// Initial entropy coefficient (default: the preset's).
+    pub ent_init: Option<f64>,
+    /// Episode length override (control steps); tests use short episodes.
+    pub horizon: Option<usize>,
+    /// Print a line per evaluation to stderr.
+    pub progress: bool,
+    /// Stop (as if killed) right after the checkpoint of this many evaluations (tests).
+    pub stop_after_evals: Option<usize>,
+}
+
+impl RunConfig {
+    pub fn new(method: Method, task: &str, seed: u64, steps: usize, out: impl Into<PathBuf>) -> Result<Self> {
+        Ok(Self {
+            method,
+            task: task.into(),
+            seed,
+            steps,
+            out: out.into(),
+            threads: 1,
+            preset: Preset::named("cpu")?,
+            joint_limits: true,
+            cartesian: None,
+            eval_every: EVAL_EVERY,
+            eval_episodes: EVAL_EPISODES,
+            policy: None,
+            ent_init: None,
+            horizon: None,
+            progress: false,
+            stop_after_evals: None,
+        })
+    }
+
+    /// `out/<task>[-nolimits][-joint|-cartesian]/<method>/seed<S>` (the SB3 runs' layout).
+    pub fn run_dir(&self) -> PathBuf {
+        let mut task = self.task.clone();
+        if !self.joint_limits {
+            task.push_str("-nolimits");
+        }
+        match self.cartesian {
+            Some(true) => task.push_str("-cartesian"),
+            Some(false) => task.push_str("-joint"),
+            None => {}
+        }
+        self.out.join(task).join(self.method.name()).join(format!("seed{}", self.seed))
+    }
+
+    fn policy_path(&self) -> PathBuf {
+        self.policy.clone().unwrap_or_else(|| Path::new(DEFAULT_POLICY_DIR).join(format!("{}.safetensors", self.task)))
+    }
+
+    fn gamma(&self) -> f64 {
+        if self.task == "square" { GAMMA_SQUARE } else { GAMMA }
+    }
+
+    fn utd(&self) -> usize {
+        if self.task == "square" { self.preset.utd_square.unwrap_or(self.preset.utd) } else { self.preset.utd }
+    }
+
+    /// What must match for a checkpoint to be resumed (not steps, threads or output place).
+    fn fingerprint(&self) -> String {
+        format!(
+            "{}|{}|{}|{:?}|{}|{:?}|{}|{}|{}|{:?}|{:?}",
+            self.method.name(),
+            self.task,
+            self.seed,
+            self.preset,
+            self.joint_limits,
+            self.cartesian,
+            self.eval_every,
+            self.eval_episodes,
+            self.policy_path().display(),
+            self.ent_init,
+            self.horizon
+        )
+    }
+
+    fn validate(&self) -> Result<()> {
+        let p = &self.preset;
+        let bad = |m: String| Err(Error::InvalidOption(m));
+        if !equigym_envs::tasks::TASK_IDS.contains(&self.task.as_str()) {
+            return bad(format!("task must be one of {:?}, got '{}'", equigym_envs::tasks::TASK_IDS, self.task));
+        }
+        if p.n_envs == 0 || p.batch == 0 || p.utd == 0 {
+            return bad(format!("preset needs n_envs, batch and utd >= 1, got {p:?}"));
+        }
+        if self.eval_every == 0 || self.eval_episodes == 0 {
+            return bad("eval_every and eval_episodes must be >= 1".into());
+        }
+        let ent = self.ent_init.unwrap_or(p.ent_init);
+        if !(ent.is_finite() && ent > 0.0) {
+            return bad(format!("the initial entropy coefficient must be positive, got {ent}"));
+        }
+        Ok(())
+    }
+}
+
+/// One line of `log.csv`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LogRow {
+    pub env_steps: u64,
+    pub success_rate: f64,
+    pub mean_q: f64,
+    pub seconds: f64,
+}
+
+/// What a finished (or stopped) run returns.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunSummary {
+    pub run_dir: PathBuf,
+    pub rows: Vec<LogRow>,
+    /// FNV-1a hash of every parameter's bits (actor, critics, targets) and the entropy coefficient.
+    pub params_hash: u64,
+    pub env_steps: u64,
+    pub grad_steps: u64,
+    pub seconds: f64,
+    /// Hidden regular fields of the equivariant nets (0 for DSRL).
+    pub fields: usize,
+    pub params_actor: usize,
+    pub params_critic: usize,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct Streams {
+    env_seeds: Rng,
+    warmup: Rng,
+    rollout: Rng,
+    replay: Rng,
+    train: Rng,
+    mean_q: Rng,
+}
+
+impl Streams {
+    fn new(seed: u64) -> Self {
+        Self {
+            env_seeds: Rng::new(seed, Stream::EnvSeeds, 0),
+            warmup: Rng::new(seed, Stream::Warmup, 0),
+            rollout: Rng::new(seed, Stream::Rollout, 0),
+            replay: Rng::new(seed, Stream::Replay, 0),
+            train: Rng::new(seed, Stream::Train, 0),
+            mean_q: Rng::new(seed, Stream::MeanQ, 0),
+        }
+    }
+}
+
+#[derive(Serialize, Deserialize)]
+struct Checkpoint {
+    format: String,
+    fingerprint: String,
+    actor: Vec<f32>,
+    critics: [Vec<f32>; 2],
+    targets: [Vec<f32>; 2],
+    log_alpha: f32,
+    opt_actor: Adam<f32>,
+    opt_critics: [Adam<f32>; 2],
+    opt_alpha: Adam<f32>,
+    replay: Replay,
+    streams: Streams,
+    envs: Vec<Vec<u8>>,
+    num_timesteps: u64,
+    next_eval: u64,
+    grad_steps: u64,
+    elapsed: f64,
+    rows: Vec<LogRow>,
+}
+
+/// FNV-1a over f32 bits.
+fn hash_params<'a>(vs: impl IntoIterator<Item = &'a [f32]>) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for v in vs {
+        for x in v {
+            for b in x.to_bits().to_le_bytes() {
+                h ^= b as u64;
+                h = h.wrapping_mul(0x0100_0000_01b3);
+            }
+        }
+    }
+    h
+}
+
+fn params_hash(sac: &Sac<f32>) -> u64 {
+    let la = [sac.log_alpha];
+    hash_params([&sac.actor.params[..], &sac.critics[0].params, &sac.critics[1].params, &sac.targets[0].params, &sac.targets[1].params, &la[..]])
+}
+
+/// Denoise `latents` (rows x latent dim, scaled box) for `envs` and run the chunks, on `pool`.
+fn step_envs(pool: &rayon::ThreadPool, envs: &mut [&mut LatentEnv], policy: &DiffusionPolicy, latents: &[f64]) -> Result<Vec<LatentStep>> {
+    let (od, ad) = (policy.obs_dim(), policy.action_dim());
+    let n = envs.len();
+    let obs: Vec<f64> = envs.iter_mut().flat_map(|e| e.env_mut().observe().to_vec()).collect();
+    let w: Vec<f64> = latents.iter().map(|v| v.clamp(-DEFAULT_LATENT_BOUND, DEFAULT_LATENT_BOUND)).collect();
+    let mut chunks = vec![0.0; n * ad];
+    let per = n.div_ceil(pool.current_num_threads()).max(1);
+    let steps = policy.default_ddim_steps;
+    pool.install(|| {
+        chunks
+            .par_chunks_mut(per * ad)
+            .zip(w.par_chunks(per * ad))
+            .zip(obs.par_chunks(per * od))
+            .try_for_each(|((c, w), o)| policy.sample(o, w, steps, c))
+    })?;
+    let out: std::result::Result<Vec<LatentStep>, equigym_wrappers::Error> =
+        pool.install(|| envs.par_iter_mut().zip(chunks.par_chunks(ad)).map(|(e, c)| e.execute(c.to_vec())).collect());
+    Ok(out?)
+}
+
+fn to_f32(v: &[f64]) -> Vec<f32> {
+    v.iter().map(|x| *x as f32).collect()
+}
+
+struct Runner {
+    cfg: RunConfig,
+    policy: Arc<DiffusionPolicy>,
+    pool: rayon::ThreadPool,
+    sac: Sac<f32>,
+    envs: Vec<LatentEnv>,
+    eval_envs: Vec<LatentEnv>,
+    replay: Replay,
+    streams: Streams,
+    num_timesteps: u64,
+    next_eval: u64,
+    grad_steps: u64,
+    elapsed: f64,
+    rows: Vec<LogRow>,
+    obs_dim: usize,
+}
+
+impl Runner {
+    fn make_env(&self) -> Result<LatentEnv> {
+        make_env(&self.cfg, &self.policy)
+    }
+
+    fn env_steps(&self) -> u64 {
+        self.num_timesteps * self.policy.chunk_len as u64
+    }
+
+    /// One vector step with its transitions and gradient steps.
+    fn collect_and_train(&mut self, batch: &mut Batch<f32>) -> Result<()> {
+        let (n, ad, od) = (self.envs.len(), self.sac.latent_dim(), self.obs_dim);
+        let mut obs = vec![0.0f32; n * od];
+        for (i, e) in self.envs.iter_mut().enumerate() {
+            for (o, v) in obs[i * od..(i + 1) * od].iter_mut().zip(e.env_mut().observe()) {
+                *o = *v as f32;
+            }
+        }
+        let bound = DEFAULT_LATENT_BOUND;
+        let scaled: Vec<f32> = if (self.num_timesteps as usize) < self.cfg.preset.warmup {
+            (0..n * ad).map(|_| (self.streams.warmup.normal().clamp(-bound, bound) / bound) as f32).collect()
+        } else {
+            let mut eps = vec![0.0f32; n * ad];
+            normals(&mut self.streams.rollout, &mut eps);
+            self.sac.act(&obs, n, &eps)
+        };
+        let latents: Vec<f64> = scaled.iter().map(|a| *a as f64 * bound).collect();
+        let mut refs: Vec<&mut LatentEnv> = self.envs.iter_mut().collect();
+        let results = step_envs(&self.pool, &mut refs, &self.policy, &latents)?;
+        self.num_timesteps += n as u64;
+        for (i, r) in results.iter().enumerate() {
+            let next = to_f32(self.envs[i].env_mut().observe());
+            self.replay.push(&obs[i * od..(i + 1) * od], &scaled[i * ad..(i + 1) * ad], r.reward as f32, &next, r.terminated);
+            if r.terminated || r.truncated {
+                let seed = self.streams.env_seeds.next_u64();
+                self.envs[i].reset(seed)?;
+            }
+        }
+        if self.num_timesteps as usize > self.cfg.preset.warmup {
+            for _ in 0..self.cfg.utd() * n {
+                self.replay.sample(self.cfg.preset.batch, &mut self.streams.replay, batch);
+                let stats = self.sac.train_step(batch, &mut self.streams.train);
+                self.grad_steps += 1;
+                if !(stats.critic_loss.is_finite() && stats.actor_loss.is_finite()) {
+                    return Err(Error::Diverged(format!(
+                        "non-finite loss at gradient step {} (critic {}, actor {})",
+                        self.grad_steps, stats.critic_loss, stats.actor_loss
+                    )));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Success rate of the stochastic actor over the evaluation episodes.
+    fn evaluate(&mut self) -> Result<f64> {
+        let episodes = self.cfg.eval_episodes;
+        while self.eval_envs.len() < episodes {
+            let e = self.make_env()?;
+            self.eval_envs.push(e);
+        }
+        let eval_index = self.rows.len() as u64;
+        let mut rngs: Vec<Rng> = (0..episodes as u64).map(|k| Rng::new(self.cfg.seed, Stream::Eval, (eval_index << 32) | k)).collect();
+        for (k, e) in self.eval_envs.iter_mut().enumerate() {
+            e.reset(EVAL_SEED + k as u64)?;
+        }
+        let mut active: Vec<bool> = vec![true; episodes];
+        let mut wins = 0usize;
+        let (od, ad) = (self.obs_dim, self.sac.latent_dim());
+        while active.iter().any(|a| *a) {
+            let idx: Vec<usize> = (0..episodes).filter(|k| active[*k]).collect();
+            let mut obs = Vec::with_capacity(idx.len() * od);
+            let mut eps = vec![0.0f32; idx.len() * ad];
+            for (j, &k) in idx.iter().enumerate() {
+                obs.extend(self.eval_envs[k].env_mut().observe().iter().map(|v| *v as f32));
+                normals(&mut rngs[k], &mut eps[j * ad..(j + 1) * ad]);
+            }
+            let a = self.sac.act(&obs, idx.len(), &eps);
+            let latents: Vec<f64> = a.iter().map(|v| *v as f64 * DEFAULT_LATENT_BOUND).collect();
+            let mut refs: Vec<&mut LatentEnv> = self.eval_envs.iter_mut().enumerate().filter(|(k, _)| active[*k]).map(|(_, e)| e).collect();
+            let results = step_envs(&self.pool, &mut refs, &self.policy, &latents)?;
+            for (&k, r) in idx.iter().zip(&results) {
+                if r.success {
+                    wins += 1;
+                }
+                if r.success || r.terminated || r.truncated {
+                    active[k] = false;
+                }
+            }
+        }
+        Ok(wins as f64 / episodes as f64)
+    }
+
+    fn mean_q(&mut self) -> f64 {
+        if self.replay.is_empty() {
+            return f64::NAN;
+        }
+        let mut b = Batch::<f32>::default();
+        self.replay.sample(MEAN_Q_SAMPLE.min(self.replay.len()), &mut self.streams.mean_q, &mut b);
+        let q = self.sac.min_q(&b.obs, &b.act, b.rows);
+        let s: f32 = q.iter().sum::<f32>() / q.len() as f32;
+        s as f64
+    }
+
+    fn checkpoint(&mut self) -> Result<Checkpoint> {
+        let envs = self.envs.iter().map(|e| e.env().get_state()).collect::<std::result::Result<Vec<_>, EnvError>>()?;
+        Ok(Checkpoint {
+            format: CHECKPOINT_FORMAT.into(),
+            fingerprint: self.cfg.fingerprint(),
+            actor: self.sac.actor.params.clone(),
+            critics: [self.sac.critics[0].params.clone(), self.sac.critics[1].params.clone()],
+            targets: [self.sac.targets[0].params.clone(), self.sac.targets[1].params.clone()],
+            log_alpha: self.sac.log_alpha,
+            opt_actor: self.sac.opt_actor.clone(),
+            opt_critics: self.sac.opt_critics.clone(),
+            opt_alpha: self.sac.opt_alpha.clone(),
+            replay: self.replay.clone(),
+            streams: self.streams.clone(),
+            envs,
+            num_timesteps: self.num_timesteps,
+            next_eval: self.next_eval,
+            grad_steps: self.grad_steps,
+            elapsed: self.elapsed,
+            rows: self.rows.clone(),
+        })
+    }
+
+    fn restore(&mut self, c: Checkpoint, path: &Path) -> Result<()> {
+        let bad = |reason: String| Error::Checkpoint { path: path.display().to_string(), reason };
+        if c.format != CHECKPOINT_FORMAT {
+            return Err(bad(format!("format '{}' is not '{CHECKPOINT_FORMAT}'", c.format)));
+        }
+        if c.fingerprint != self.cfg.fingerprint() {
+            return Err(bad(format!(
+                "written by another configuration ({}); use another --out or delete it",
+                c.fingerprint
+            )));
+        }
+        let fit = |name: &str, got: usize, want: usize| if got == want { Ok(()) } else { Err(bad(format!("{name} has {got} parameters, expected {want}"))) };
+        fit("actor", c.actor.len(), self.sac.actor.num_params())?;
+        for k in 0..2 {
+            fit("critic", c.critics[k].len(), self.sac.critics[k].num_params())?;
+            fit("target critic", c.targets[k].len(), self.sac.targets[k].num_params())?;
+        }
+        if c.envs.len() != self.envs.len() {
+            return Err(bad(format!("{} environments saved, {} needed", c.envs.len(), self.envs.len())));
+        }
+        for (e, s) in self.envs.iter_mut().zip(&c.envs) {
+            e.env_mut().set_state(s)?;
+        }
+        self.sac.actor.params = c.actor;
+        let [c0, c1] = c.critics;
+        let [t0, t1] = c.targets;
+        self.sac.critics[0].params = c0;
+        self.sac.critics[1].params = c1;
+        self.sac.targets[0].params = t0;
+        self.sac.targets[1].params = t1;
+        self.sac.actor.expand();
+        for n in self.sac.critics.iter_mut().chain(self.sac.targets.iter_mut()) {
+            n.expand();
+        }
+        self.sac.log_alpha = c.log_alpha;
+        self.sac.opt_actor = c.opt_actor;
+        self.sac.opt_critics = c.opt_critics;
+        self.sac.opt_alpha = c.opt_alpha;
+        self.replay = c.replay;
+        self.streams = c.streams;
+        self.num_timesteps = c.num_timesteps;
+        self.next_eval = c.next_eval;
+        self.grad_steps = c.grad_steps;
+        self.elapsed = c.elapsed;
+        self.rows = c.rows;
+        Ok(())
+    }
+
+    fn write_log(&self, dir: &Path) -> Result<()> {
+        let mut s = String::from("env_steps,success_rate,mean_q,seconds\n");
+        for r in &self.rows {
+            s.push_str(&format!("{},{},{},{:.1}\n", r.env_steps, fmt_float(r.success_rate), fmt_float(r.mean_q), r.seconds));
+        }
+        write_atomic(&dir.join("log.csv"), s.as_bytes())
+    }
+}
+
+/// Python's spelling of floats in CSV (`nan` for NaN).
+fn fmt_float(v: f64) -> String {
+    if v.is_nan() { "nan".into() } else { format!("{v:?}") }
+}
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, bytes).map_err(|e| io_err(&tmp, e))?;
+    std::fs::rename(&tmp, path).map_err(|e| io_err(path, e))
+}
+
+/// A latent environment as the run configures it.
+pub fn make_env(cfg: &RunConfig, policy: &Arc<DiffusionPolicy>) -> Result<LatentEnv> {
+    let mut ec = EnvConfig::new(&cfg.task);
+    ec.physics.joint_limits = cfg.joint_limits;
+    if let Some(c) = cfg.cartesian {
+        ec.physics.cartesian_control = c;
+    }
+    ec.horizon = cfg.horizon;
+    let env = Env::new(ec)?;
+    Ok(LatentEnv::new(env, policy.clone(), DEFAULT_LATENT_BOUND, policy.default_ddim_steps)?)
+}
+
+/// Run (or resume, or extend) one steering run; see the module docs.
+pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
+    cfg.validate()?;
+    let started = Instant::now();
+    let policy = Arc::new(DiffusionPolicy::load(cfg.policy_path())?);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(cfg.threads)
+        .thread_name(|i| format!("equigym-steer-{i}"))
+        .build()
+        .map_err(|e| Error::InvalidOption(format!("cannot start {} threads: {e}", cfg.threads)))?;
+    let mut envs = Vec::with_capacity(cfg.preset.n_envs);
+    for _ in 0..cfg.preset.n_envs {
+        envs.push(make_env(cfg, &policy)?);
+    }
+    let sym = TaskSymmetry::for_env(envs[0].env(), Group::cyclic(GROUP_ORDER)?, policy.chunk_len)?;
+    let obs_dim = sym.observation.dim();
+    let arch = Arch { width: cfg.preset.width, layers: cfg.preset.layers };
+    let models = Models::<f32>::new(cfg.method, &sym, arch, cfg.seed)?;
+    let fields = models.fields;
+    let sac_cfg = SacConfig { lr: LEARNING_RATE, gamma: cfg.gamma(), tau: TAU, target_entropy: TARGET_ENTROPY, ent_init: cfg.ent_init.unwrap_or(cfg.preset.ent_init) };
+    let sac = Sac::new(models, obs_dim, sac_cfg);
+    let latent_dim = sac.latent_dim();
+    let mut r = Runner {
+        cfg: cfg.clone(),
+        policy,
+        pool,
+        sac,
+        envs,
+        eval_envs: Vec::new(),
+        replay: Replay::new(obs_dim, latent_dim, DEFAULT_CAPACITY),
+        streams: Streams::new(cfg.seed),
+        num_timesteps: 0,
+        next_eval: 0,
+        grad_steps: 0,
+        elapsed: 0.0,
+        rows: Vec::new(),
+        obs_dim,
+    };
+    let dir = cfg.run_dir();
+    std::fs::create_dir_all(&dir).map_err(|e| io_err(&dir, e))?;
+    let ckpt_path = dir.join(CHECKPOINT_FILE);
+    if ckpt_path.exists() {
+        let bytes = std::fs::read(&ckpt_path).map_err(|e| io_err(&ckpt_path, e))?;
+        let c: Checkpoint = postcard::from_bytes(&bytes).map_err(|e| Error::Checkpoint { path: ckpt_path.display().to_string(), reason: format!("corrupt ({e})") })?;
+        r.restore(c, &ckpt_path)?;
+        r.write_log(&dir)?;
+    } else {
+        for e in r.envs.iter_mut() {
+            let seed = r.streams.env_seeds.next_u64();
+            e.reset(seed)?;
+        }
+        // A log from an older run without a checkpoint would mix two runs.
+        let _ = std::fs::remove_file(dir.join("log.csv"));
+    }
+    let (params_actor, params_critic) = (r.sac.actor.num_params(), r.sac.critics[0].num_params() + r.sac.critics[1].num_params());
+    let meta = format!(
+        "{{\"method\": \"{}\", \"task\": \"{}\", \"seed\": {}, \"steps\": {}, \"preset\": \"{}\", \"joint_limits\": {}, \"agent\": \"rust\", \"fields\": {}, \"params_actor\": {}, \"params_critic\": {}, \"policy\": \"{}\"}}\n",
+        cfg.method.name(), cfg.task, cfg.seed, cfg.steps, cfg.preset.name, cfg.joint_limits, fields, params_actor, params_critic, cfg.policy_path().display()
+    );
+    write_atomic(&dir.join("run.json"), meta.as_bytes())?;
+    let base_elapsed = r.elapsed;
+    let mut batch = Batch::default();
+    let mut evals_now = 0;
+    while r.env_steps() < cfg.steps as u64 {
+        r.collect_and_train(&mut batch)?;
+        let steps = r.env_steps();
+        if steps >= r.next_eval {
+            r.next_eval += cfg.eval_every as u64;
+            let success_rate = r.evaluate()?;
+            let mean_q = r.mean_q();
+            r.elapsed = base_elapsed + started.elapsed().as_secs_f64();
+            r.rows.push(LogRow { env_steps: steps, success_rate, mean_q, seconds: (r.elapsed * 10.0).round() / 10.0 });
+            r.write_log(&dir)?;
+            let c = r.checkpoint()?;
+            let bytes = postcard::to_stdvec(&c).map_err(|e| io_err(&ckpt_path, e))?;
+            write_atomic(&ckpt_path, &bytes)?;
+            if cfg.progress {
+                eprintln!(
+                    "{}/{}/seed{}: {steps} env steps, success {success_rate:.2}, mean Q {mean_q:.3}, {:.1} s",
+                    cfg.task, cfg.method.name(), cfg.seed, r.elapsed
+                );
+            }
+            evals_now += 1;
+            if cfg.stop_after_evals == Some(evals_now) {
+                break;
+            }
+        }
+    }
+    if cfg.stop_after_evals != Some(evals_now) {
+        r.elapsed = base_elapsed + started.elapsed().as_secs_f64();
+        let bytes = postcard::to_stdvec(&r.checkpoint()?).map_err(|e| io_err(&ckpt_path, e))?;
+        write_atomic(&ckpt_path, &bytes)?;
+    }
+    let summary = RunSummary {
+        run_dir: dir.clone(),
+        rows: r.rows.clone(),
+        params_hash: params_hash(&r.sac),
+        env_steps: r.env_steps(),
+        grad_steps: r.grad_steps,
+        seconds: base_elapsed + started.elapsed().as_secs_f64(),
+        fields,
+        params_actor,
+        params_critic,
+    };
+    let done = format!(
+        "{{\"env_steps\": {}, \"grad_steps\": {}, \"params_hash\": \"{:016x}\", \"seconds\": {:.1}}}\n",
+        summary.env_steps, summary.grad_steps, summary.params_hash, summary.seconds
+    );
+    write_atomic(&dir.join("summary.json"), done.as_bytes())?;
+    Ok(summary)
+}

@@ -1,0 +1,109 @@
+//! Whole runs on the Lift latent environment (tiny nets, short episodes): the same seed gives
+//! identical logs and weights with 1 and 2 threads; a run killed after its second evaluation and
+//! started again ends bit for bit where the uninterrupted run ends; and a committed golden file
+//! catches any change in numerics (physics, EDP, kernels, agents).
+//!
+//! After an intended change of numerics, regenerate the golden file with
+//! `EQUIGYM_BLESS=1 cargo test --release -p equigym-agents --test runs` and commit it.
+
+use std::path::{Path, PathBuf};
+
+use equigym_agents::run::LogRow;
+use equigym_agents::{run, Method, Preset, RunConfig, RunSummary};
+
+const GOLDEN: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/golden/lift_short_runs.txt");
+
+fn tiny(method: Method, out: &Path) -> RunConfig {
+    let mut c = RunConfig::new(method, "lift", 3, 384, out).unwrap();
+    c.preset = Preset { name: "test".into(), width: 16, layers: 2, utd: 1, utd_square: None, batch: 32, n_envs: 4, warmup: 48, ent_init: 0.2 };
+    c.eval_every = 128;
+    c.eval_episodes = 3;
+    c.horizon = Some(48);
+    c
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("equigym-agents-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+/// The log without its wall-clock column.
+fn numbers(rows: &[LogRow]) -> Vec<(u64, u64, u64)> {
+    rows.iter().map(|r| (r.env_steps, r.success_rate.to_bits(), r.mean_q.to_bits())).collect()
+}
+
+fn describe(method: Method, s: &RunSummary) -> String {
+    let mut out = format!("{} params {:016x} grad_steps {}\n", method.name(), s.params_hash, s.grad_steps);
+    for r in &s.rows {
+        out.push_str(&format!("  {} {:?} {:?}\n", r.env_steps, r.success_rate, r.mean_q));
+    }
+    out
+}
+
+#[test]
+fn threads_resume_and_golden() {
+    let mut golden = String::new();
+    for method in [Method::Dsrl, Method::Equi, Method::Approx] {
+        let a_dir = scratch(&format!("a-{}", method.name()));
+        let a = run(&tiny(method, &a_dir)).unwrap();
+        assert_eq!(a.rows.len(), 4, "evaluations at 16, 128, 256 and 384 env steps");
+        assert!(a.grad_steps > 0);
+        golden.push_str(&describe(method, &a));
+        if method == Method::Equi || method == Method::Dsrl {
+            // Two threads: identical log and weights.
+            let b_dir = scratch(&format!("b-{}", method.name()));
+            let mut cb = tiny(method, &b_dir);
+            cb.threads = 2;
+            let b = run(&cb).unwrap();
+            assert_eq!(numbers(&a.rows), numbers(&b.rows), "{method:?}: threads 1 vs 2");
+            assert_eq!(a.params_hash, b.params_hash, "{method:?}: threads 1 vs 2");
+            // Killed after the second evaluation, then started again.
+            let c_dir = scratch(&format!("c-{}", method.name()));
+            let mut cc = tiny(method, &c_dir);
+            cc.stop_after_evals = Some(2);
+            let stopped = run(&cc).unwrap();
+            assert_eq!(stopped.rows.len(), 2);
+            cc.stop_after_evals = None;
+            let resumed = run(&cc).unwrap();
+            assert_eq!(numbers(&a.rows), numbers(&resumed.rows), "{method:?}: resumed run");
+            assert_eq!(a.params_hash, resumed.params_hash, "{method:?}: resumed run");
+            assert_eq!(a.grad_steps, resumed.grad_steps);
+            let log = std::fs::read_to_string(c_dir.join("lift/").join(method.name()).join("seed3/log.csv")).unwrap();
+            assert_eq!(log.lines().count(), 5, "the resumed log has every evaluation once");
+            for d in [b_dir, c_dir] {
+                let _ = std::fs::remove_dir_all(d);
+            }
+        }
+        let _ = std::fs::remove_dir_all(a_dir);
+    }
+    if std::env::var_os("EQUIGYM_BLESS").is_some() {
+        std::fs::create_dir_all(Path::new(GOLDEN).parent().unwrap()).unwrap();
+        std::fs::write(GOLDEN, &golden).unwrap();
+    }
+    let want = std::fs::read_to_string(GOLDEN).expect("golden file missing: run with EQUIGYM_BLESS=1 once");
+    assert_eq!(golden, want, "numerics changed; if intended, regenerate with EQUIGYM_BLESS=1 (see the module docs)");
+}
+
+#[test]
+fn bad_options_and_foreign_checkpoints_are_typed_errors() {
+    let dir = scratch("errors");
+    let mut c = tiny(Method::Dsrl, &dir);
+    c.task = "juggle".into();
+    assert!(matches!(run(&c), Err(equigym_agents::Error::InvalidOption(_))));
+    assert!(matches!(Preset::named("gpu"), Err(equigym_agents::Error::InvalidOption(_))));
+    assert!(matches!(Method::parse("ppo"), Err(equigym_agents::Error::InvalidOption(_))));
+    let mut c = tiny(Method::Dsrl, &dir);
+    c.policy = Some("/nonexistent/edp.safetensors".into());
+    assert!(matches!(run(&c), Err(equigym_agents::Error::Wrappers(_))));
+    // A checkpoint of another configuration in the same place is refused, not mixed in.
+    let mut c = tiny(Method::Dsrl, &dir);
+    c.steps = 16;
+    run(&c).unwrap();
+    c.ent_init = Some(0.5);
+    assert!(matches!(run(&c), Err(equigym_agents::Error::Checkpoint { .. })));
+    // A corrupt checkpoint is an error too.
+    std::fs::write(c.run_dir().join("checkpoint.bin"), b"garbage").unwrap();
+    assert!(matches!(run(&c), Err(equigym_agents::Error::Checkpoint { .. })));
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -1,0 +1,198 @@
+"""Steering agents in Rust (DSRL, Equi-DSRL, Approx-Equi-DSRL): one run, a sweep on Ray Tune,
+and a report next to the SB3 baselines.
+
+    python -m equigym.steer run --method equi --task lift --seed 0 --steps 16000 --out runs/steer-rust
+    python -m equigym.steer sweep --methods dsrl equi approx --tasks lift --seeds 0 1 2 3 4 --steps 16000 \\
+        --out runs/sweep [--sb3 dsrl equi approx --sb3-seeds 0 1 2] [--cpus 2] [--address ray://host:10001] [--resume]
+    python -m equigym.steer report --runs runs/sweep/rust [--sb3-runs runs/steer] --out docs/steering/rust
+
+``run`` trains in-process in Rust (the GIL is released) and writes
+``<out>/<task>/<method>/seed<S>/log.csv`` (``env_steps, success_rate, mean_q, seconds``, as the
+SB3 runs), ``run.json``, ``summary.json`` (with a hash of the final weights) and
+``checkpoint.bin``. Started again with the same arguments it resumes from the checkpoint and
+ends bit for bit where an uninterrupted run ends; a larger ``--steps`` extends a finished run.
+Results do not depend on ``--threads``.
+
+``sweep`` runs methods x tasks x seeds as Ray Tune trials (``pip install 'equigym[sweep]'``):
+local Ray by default, ``--address`` joins a cluster. Each trial advances its run one evaluation
+interval at a time (each call resumes the agent's own checkpoint, so this changes nothing in the
+results) and reports to Tune after each; ``--resume`` restores an interrupted sweep with
+``Tuner.restore``. ``--sb3`` adds the SB3 + escnn baselines (``baselines.steer.run``, needs the
+``train`` extra), written under ``<out>/sb3``; the Rust runs go under ``<out>/rust``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from equigym import _core
+
+METHODS = ("dsrl", "equi", "approx")
+TASKS = ("lift", "stack", "square")
+
+
+def _policy(task: str, policy: str | None) -> str:
+    if policy is not None:
+        return policy
+    from equigym.latent import shipped_policy
+
+    return str(shipped_policy(task))
+
+
+def run(method: str, task: str = "lift", seed: int = 0, steps: int = 20_000, out: str | Path = "runs/steer-rust", *,
+        threads: int = 1, preset: str = "cpu", joint_limits: bool = True, controller: str | None = None,
+        eval_every: int = 2000, eval_episodes: int = 50, policy: str | None = None, ent_init: float | None = None,
+        horizon: int | None = None, progress: bool = True) -> dict[str, Any]:
+    """One Rust steering run (see the module docs); returns its summary (``run_dir``, ``rows``,
+    ``env_steps``, ``grad_steps``, ``seconds``, ``params_hash``, ``fields``, parameter counts)."""
+    return _core.steer_run(method, task, seed, steps, str(out), threads=threads, preset=preset, joint_limits=joint_limits,
+                           controller=controller, eval_every=eval_every, eval_episodes=eval_episodes,
+                           policy=_policy(task, policy), ent_init=ent_init, horizon=horizon, progress=progress)
+
+
+def _trainable(config: dict[str, Any]) -> None:
+    """One sweep trial: advance the run an evaluation interval at a time, report after each."""
+    import tempfile
+
+    from ray import tune
+
+    c = config
+    every = c["eval_every"]
+    target = every
+    while True:
+        target = min(target, c["steps"])
+        if c["agent"] == "rust":
+            s = run(c["method"], c["task"], c["seed"], target, c["out"], threads=1, preset=c["preset"],
+                    joint_limits=c["joint_limits"], eval_every=every, eval_episodes=c["eval_episodes"],
+                    policy=c["policy"], ent_init=c["ent_init"], progress=False)
+            last = s["rows"][-1] if s["rows"] else (0, float("nan"), float("nan"), 0.0)
+            metrics = {"env_steps": last[0], "success_rate": last[1], "mean_q": last[2], "run_seconds": s["seconds"]}
+        else:
+            from baselines.steer import PRESETS
+            from baselines.steer import run as sb3_run
+
+            preset = {"name": c["preset"], **PRESETS[c["preset"]]}
+            if c["ent_init"] is not None:
+                preset["ent_init"] = c["ent_init"]
+            d = sb3_run(c["method"], c["task"], c["seed"], target, c["out"], preset, c["joint_limits"], every, c["eval_episodes"],
+                        c["policy"], progress=False)
+            rows = (d / "log.csv").read_text().strip().splitlines()[1:]
+            last = [float(v) for v in rows[-1].split(",")] if rows else [0, float("nan"), float("nan"), 0.0]
+            metrics = {"env_steps": int(last[0]), "success_rate": last[1], "mean_q": last[2], "run_seconds": last[3]}
+        # The agent keeps its own checkpoint; Tune's marks how far the trial got.
+        with tempfile.TemporaryDirectory() as tmp:
+            Path(tmp, "progress.json").write_text(json.dumps({"steps": target}))
+            tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(tmp))
+        if target >= c["steps"]:
+            return
+        target += every
+
+
+def sweep(a: argparse.Namespace) -> None:
+    try:
+        import ray
+        from ray import tune
+    except ImportError as e:  # pragma: no cover
+        raise SystemExit("the sweep needs Ray Tune: pip install 'equigym[sweep]' (or 'ray[tune]')") from e
+    out = Path(a.out).resolve()
+    sb3_seeds = a.sb3_seeds if a.sb3_seeds is not None else a.seeds
+    # Seed-major, so that early results cover every method.
+    jobs = [{"agent": "rust", "method": m, "seed": s} for s in a.seeds for m in a.methods]
+    jobs += [{"agent": "sb3", "method": m, "seed": s} for s in sb3_seeds for m in (a.sb3 or [])]
+    space = {
+        "job": tune.grid_search(jobs),
+        "task": tune.grid_search(a.tasks),
+        "steps": a.steps, "preset": a.preset, "joint_limits": not a.no_joint_limits, "eval_every": a.eval_every,
+        "eval_episodes": a.eval_episodes, "policy": a.policy, "ent_init": a.ent_init, "out_root": str(out),
+    }
+
+    def trainable(config: dict[str, Any]) -> None:
+        c = {**config, **config["job"]}
+        c["out"] = str(Path(c["out_root"]) / c["agent"])
+        _trainable(c)
+
+    ray.init(address=a.address, num_cpus=a.cpus if a.address is None else None, ignore_reinit_error=True,
+             runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}} if a.sb3 else None)
+    resources = tune.with_resources(trainable, {"cpu": 1})
+    storage = str(out / "tune")
+    name = "steer"
+    started = time.time()
+    if a.resume and tune.Tuner.can_restore(str(Path(storage) / name)):
+        tuner = tune.Tuner.restore(str(Path(storage) / name), resources, resume_errored=True)
+    else:
+        tuner = tune.Tuner(resources, param_space=space,
+                           run_config=tune.RunConfig(name=name, storage_path=storage, verbose=1))
+    results = tuner.fit()
+    wall = time.time() - started
+    failed = [r for r in results if r.error is not None]
+    (out / "sweep.json").write_text(json.dumps({"trials": len(results), "failed": len(failed), "wall_seconds": round(wall, 1),
+                                                "cpus": a.cpus, "args": sys.argv[1:]}, indent=1))
+    print(f"{len(results)} trials, {len(failed)} failed, {wall:.0f} s wall")
+    if failed:
+        raise SystemExit(f"{len(failed)} trials failed; rerun with --resume")
+
+
+def report(a: argparse.Namespace) -> str:
+    from baselines.report import write_report
+
+    roots = [a.runs] + ([a.sb3_runs] if a.sb3_runs else [])
+    text = write_report(roots, a.out)
+    print(text)
+    return text
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(prog="python -m equigym.steer", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    for name in ("run", "sweep"):
+        s = sub.add_parser(name)
+        if name == "run":
+            s.add_argument("--method", choices=METHODS, required=True)
+            s.add_argument("--task", choices=TASKS, default="lift")
+            s.add_argument("--seed", type=int, default=0)
+            s.add_argument("--threads", type=int, default=1, help="environment / denoising threads (results do not depend on it)")
+            s.add_argument("--controller", choices=("joint", "cartesian"), default=None)
+            s.add_argument("--horizon", type=int, default=None, help="episode length override (control steps)")
+            s.add_argument("--quiet", action="store_true")
+            s.add_argument("--out", default="runs/steer-rust")
+        else:
+            s.add_argument("--methods", nargs="*", choices=METHODS, default=list(METHODS))
+            s.add_argument("--sb3", nargs="*", choices=METHODS, default=None, help="SB3 + escnn methods to run as well")
+            s.add_argument("--sb3-seeds", nargs="+", type=int, default=None, help="seeds of the SB3 runs (default: --seeds)")
+            s.add_argument("--tasks", nargs="+", choices=TASKS, default=["lift"])
+            s.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
+            s.add_argument("--cpus", type=int, default=None, help="local Ray CPUs (default: all); one per trial")
+            s.add_argument("--address", default=None, help="join a Ray cluster (e.g. ray://host:10001)")
+            s.add_argument("--resume", action="store_true", help="restore an interrupted sweep (Tuner.restore)")
+            s.add_argument("--out", default="runs/sweep")
+        s.add_argument("--steps", type=int, default=20_000, help="primitive environment steps per run")
+        s.add_argument("--preset", choices=("cpu", "paper"), default="cpu")
+        s.add_argument("--no-joint-limits", action="store_true")
+        s.add_argument("--eval-every", type=int, default=2000)
+        s.add_argument("--eval-episodes", type=int, default=50)
+        s.add_argument("--policy", default=None, help="EDP file (default: the shipped one)")
+        s.add_argument("--ent-init", type=float, default=None, help="initial entropy coefficient (default: the preset's)")
+    r = sub.add_parser("report")
+    r.add_argument("--runs", default="runs/sweep/rust", help="Rust runs")
+    r.add_argument("--sb3-runs", default=None, help="SB3 runs to show beside them")
+    r.add_argument("--out", default="docs/steering/rust")
+    a = p.parse_args(argv)
+    if a.cmd == "report":
+        report(a)
+    elif a.cmd == "sweep":
+        sweep(a)
+    else:
+        s = run(a.method, a.task, a.seed, a.steps, a.out, threads=a.threads, preset=a.preset, joint_limits=not a.no_joint_limits,
+                controller=a.controller, eval_every=a.eval_every, eval_episodes=a.eval_episodes, policy=a.policy,
+                ent_init=a.ent_init, horizon=a.horizon, progress=not a.quiet)
+        print(json.dumps({k: v for k, v in s.items() if k != "rows"}, default=str))
+
+
+if __name__ == "__main__":
+    main()

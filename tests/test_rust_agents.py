@@ -1,0 +1,174 @@
+"""The Rust steering agents from Python: gradients of every layer kind and of the SAC losses
+against an independent PyTorch implementation (float64), and the run entry point (log layout,
+thread independence, resume)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+
+from equigym import _core, steer
+
+torch = pytest.importorskip("torch")
+
+
+# -- an independent PyTorch rebuild of the networks from their description --------------------
+def dft_matrix(order: int = 8) -> torch.Tensor:
+    """The orthonormal real DFT: rows rho0, rho4, then (cos, -sin) of frequencies 1, 2, 3."""
+    a = torch.arange(order, dtype=torch.float64)
+    th = 2 * math.pi * a / order
+    rows = [torch.ones(order, dtype=torch.float64) / math.sqrt(order), (-1.0) ** a / math.sqrt(order)]
+    for w in (1, 2, 3):
+        rows += [torch.cos(w * th) * math.sqrt(2 / order), -torch.sin(w * th) * math.sqrt(2 / order)]
+    return torch.stack([r.to(torch.float64) for r in rows])
+
+
+def net_forward(spec: dict, p: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    for L in spec["layers"]:
+        k = L["kind"]
+        if k == "dense":
+            n_in, n_out, w, b = L["n_in"], L["n_out"], L["w"], L["b"]
+            x = x @ p[w:w + n_in * n_out].view(n_in, n_out) + p[b:b + n_out]
+        elif k == "equi":
+            n_in, n_out, w = L["n_in"], L["n_out"], L["w"]
+            entries = torch.tensor(L["entries"], dtype=torch.long)
+            vals = p[w + torch.tensor(L["pidx"], dtype=torch.long)] * torch.tensor(L["coefs"], dtype=torch.float64)
+            W = torch.zeros(n_in * n_out, dtype=torch.float64).index_add(0, entries, vals)
+            bias_p = p[w + L["n_weights"] + torch.tensor(L["bias_pidx"], dtype=torch.long)]
+            bias = torch.zeros(n_out, dtype=torch.float64).index_add(0, torch.tensor(L["bias_out"], dtype=torch.long), bias_p)
+            if L["plain"] is not None:
+                pw, pb = L["plain"]
+                W = W + p[pw:pw + n_in * n_out]
+                bias = bias + p[pb:pb + n_out]
+            x = x @ W.view(n_in, n_out) + bias
+        elif k == "layer_norm":
+            n, g, s = L["n"], L["g"], L["s"]
+            x = torch.nn.functional.layer_norm(x, (n,), p[g:g + n], p[s:s + n], eps=1e-5)
+        elif k == "tanh":
+            x = torch.tanh(x)
+        elif k == "relu":
+            x = torch.relu(x)
+        elif k == "pool_head":
+            f, o, w, b = L["fields"], L["order"], L["w"], L["b"]
+            q = x.view(len(x), f, o).max(dim=2).values @ p[w:w + f] + p[b]
+            if L["plain"] is not None:
+                pw, pb = L["plain"]
+                q = q + x @ p[pw:pw + f * o] + p[pb]
+            x = q.unsqueeze(1)
+        elif k == "circulant":
+            fi, fo, w, b = L["f_in"], L["f_out"], L["w"], L["b"]
+            T = dft_matrix()
+            n = fi * fo
+            blk = [p[w + i * n:w + (i + 1) * n].view(fi, fo) for i in range(8)]
+            xh = x.view(len(x), fi, 8) @ T.T  # (B, F_in, 8 components)
+            out = [xh[..., 0] @ blk[0], xh[..., 1] @ blk[1]]
+            for j in range(3):
+                A, Bm = blk[2 + 2 * j], blk[3 + 2 * j]
+                re, im = xh[..., 2 + 2 * j], xh[..., 3 + 2 * j]
+                out += [re @ A - im @ Bm, re @ Bm + im @ A]  # (A + iB)(re + i im)
+            yh = torch.stack(out, dim=2)  # (B, F_out, 8)
+            x = ((yh @ T) + p[b:b + fo].unsqueeze(1)).reshape(len(x), fo * 8)
+        else:
+            raise AssertionError(k)
+    return x
+
+
+def squash(case: dict, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    if case["radial"] is None:  # SB3's tanh squash
+        a = torch.tanh(u)
+        return a, torch.log(1 - a ** 2 + 1e-6).sum(dim=1)
+    from baselines.agents import _radial_squash  # the SB3 Equi-DSRL actor's own formula
+
+    pairs, singles = case["radial"]
+    return _radial_squash(u, torch.tensor(pairs, dtype=torch.long).reshape(-1, 2), torch.tensor(singles, dtype=torch.long))
+
+
+def actor_sample(case: dict, p: torch.Tensor, obs: torch.Tensor, eps: torch.Tensor):
+    d = case["latent_dim"]
+    out = net_forward(case["actor"], p, obs)
+    mean = out[:, :d]
+    lo, hi = case["log_std_range"]
+    log_std = out[:, torch.tensor(case["log_std_index"])].clamp(lo, hi)
+    std = log_std.exp()
+    u = mean + std * eps
+    a, logdet = squash(case, u)
+    logp = torch.distributions.Normal(mean, std).log_prob(u).sum(dim=1) - logdet
+    return a, logp
+
+
+@pytest.mark.parametrize("method", ["dsrl", "equi", "approx"])
+def test_sac_gradients_match_pytorch(method):
+    if method != "dsrl":
+        pytest.importorskip("stable_baselines3")  # baselines.agents holds the SB3 actor's radial squash
+    c = _core.steer_gradcase(method, "lift", seed=1, rows=6)
+    B, od, ad = c["rows"], c["obs_dim"], c["latent_dim"]
+    t = lambda k, *shape: torch.tensor(c[k], dtype=torch.float64).view(*shape)  # noqa: E731
+    obs, act, next_obs = t("obs", B, od), t("act", B, ad), t("next_obs", B, od)
+    reward, done, eps1, eps2 = t("reward", B), t("done", B), t("eps1", B, ad), t("eps2", B, ad)
+    pa = torch.tensor(c["actor"]["params"], dtype=torch.float64, requires_grad=True)
+    pcs = [torch.tensor(cr["params"], dtype=torch.float64, requires_grad=True) for cr in c["critics"]]
+    la = torch.tensor(c["log_alpha"], dtype=torch.float64, requires_grad=True)
+    alpha = la.detach().exp()
+    q = lambda k, o, a: net_forward(c["critics"][k], pcs[k], torch.cat([o, a], dim=1)).squeeze(1)  # noqa: E731
+    # soft target (target critics = the critics, no gradient)
+    with torch.no_grad():
+        a2, logp2 = actor_sample(c, pa, next_obs, eps2)
+        y = reward + (1 - done) * c["gamma"] * (torch.minimum(q(0, next_obs, a2), q(1, next_obs, a2)) - alpha * logp2)
+    np.testing.assert_allclose(y.numpy(), c["y"], rtol=1e-10, atol=1e-10)
+    # critic losses
+    for k in range(2):
+        loss = 0.5 * ((q(k, obs, act) - y) ** 2).mean()
+        (g,) = torch.autograd.grad(loss, pcs[k])
+        assert math.isclose(loss.item(), c["critic_losses"][k], rel_tol=1e-10)
+        np.testing.assert_allclose(g.numpy(), c["critic_grads"][k], rtol=1e-7, atol=1e-10, err_msg=f"{method} critic {k}")
+    # actor loss through both critics
+    a1, logp1 = actor_sample(c, pa, obs, eps1)
+    np.testing.assert_allclose(logp1.detach().numpy(), c["logp"], rtol=1e-9, atol=1e-9)
+    loss = (alpha * logp1 - torch.minimum(q(0, obs, a1), q(1, obs, a1))).mean()
+    (g,) = torch.autograd.grad(loss, pa)
+    assert math.isclose(loss.item(), c["actor_loss"], rel_tol=1e-9)
+    np.testing.assert_allclose(g.numpy(), c["actor_grad"], rtol=1e-7, atol=1e-10, err_msg=f"{method} actor")
+    # entropy coefficient
+    aloss = -(la * (logp1.detach() + 0.0)).mean()
+    (ga,) = torch.autograd.grad(aloss, la)
+    assert math.isclose(ga.item(), c["alpha_grad"], rel_tol=1e-9)
+
+
+# -- the run entry point ---------------------------------------------------------------------
+SHORT = dict(eval_every=64, eval_episodes=2, horizon=32, progress=False)
+
+
+def read(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def test_run_writes_the_sb3_log_layout_and_is_thread_independent_and_resumable(tmp_path):
+    one = steer.run("equi", "lift", 0, 128, tmp_path / "a", threads=1, **SHORT)
+    two = steer.run("equi", "lift", 0, 128, tmp_path / "b", threads=2, **SHORT)
+    strip = lambda rows: [r[:3] for r in rows]  # noqa: E731  (without seconds)
+    assert strip(one["rows"]) == strip(two["rows"]) and one["params_hash"] == two["params_hash"]
+    run_dir = tmp_path / "a" / "lift" / "equi" / "seed0"
+    rows = read(run_dir / "log.csv")
+    assert list(rows[0]) == ["env_steps", "success_rate", "mean_q", "seconds"]
+    assert [int(r["env_steps"]) for r in rows] == [16, 64, 128]
+    meta = json.loads((run_dir / "run.json").read_text())
+    assert meta["agent"] == "rust" and meta["method"] == "equi" and meta["fields"] == 24
+    # Started again with more steps it extends the run; with the same steps it only reloads.
+    again = steer.run("equi", "lift", 0, 128, tmp_path / "a", threads=1, **SHORT)
+    assert strip(again["rows"]) == strip(one["rows"]) and again["params_hash"] == one["params_hash"]
+    longer = steer.run("equi", "lift", 0, 192, tmp_path / "a", threads=1, **SHORT)
+    assert strip(longer["rows"])[:3] == strip(one["rows"]) and len(longer["rows"]) == 4
+
+
+def test_bad_arguments_raise_value_errors(tmp_path):
+    with pytest.raises(ValueError, match="method"):
+        _core.steer_run("ppo", "lift", 0, 16, str(tmp_path))
+    with pytest.raises(ValueError, match="preset"):
+        _core.steer_run("dsrl", "lift", 0, 16, str(tmp_path), preset="gpu")
+    with pytest.raises(ValueError, match="controller"):
+        _core.steer_run("dsrl", "lift", 0, 16, str(tmp_path), controller="torque")
