@@ -23,6 +23,9 @@ use crate::world::{build_world, PhysicsConfig, TableSpec, WorldColliders};
 
 pub use crate::world::{colour_code, link_shape, GROUP_OBJECT, GROUP_ROBOT, GROUP_STATIC};
 
+/// IK tolerance (m, rad) when the robot is moved for a symmetry probe.
+const TRANSFORM_IK_TOLERANCE: f64 = 1e-8;
+
 /// Damping of the least-squares map from a TCP twist to joint velocities (symmetry probes).
 const TWIST_DAMPING: f64 = 1e-3;
 
@@ -215,7 +218,14 @@ impl Scene {
         let v = motion.rotation * twist.fixed_rows::<3>(0).into_owned();
         let w = motion.rotation * twist.fixed_rows::<3>(3).into_owned();
         let target = motion * self.tcp_pose();
-        let opts = IkOptions { max_iterations: self.ik.max_iterations.max(200), ..self.ik };
+        // Symmetry probes compare g.s with the rotated observation: solve far below the
+        // control tolerance, so what is left is the f32 physics (about 1e-6 m).
+        let opts = IkOptions {
+            max_iterations: self.ik.max_iterations.max(200),
+            position_tolerance: TRANSFORM_IK_TOLERANCE,
+            rotation_tolerance: TRANSFORM_IK_TOLERANCE,
+            ..self.ik
+        };
         let mut all: Vec<&[f64]> = self.seeds.iter().map(|s| s.as_slice()).collect();
         all.extend_from_slice(seeds);
         let mut q_new = q.clone();
