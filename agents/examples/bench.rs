@@ -91,7 +91,8 @@ fn grad_steps_per_s(method: Method, arch: Arch, steps: usize) -> (f64, usize) {
     let models = Models::<f32>::new(method, &sym, arch, 0).unwrap();
     let fields = models.fields;
     let (od, ad) = (sym.observation.dim(), sym.chunk.dim());
-    let mut sac = Sac::new(models, od, SacConfig { lr: 3e-4, gamma: 0.99, tau: 0.005, target_entropy: 0.0, ent_init: 0.2 });
+    let mut sac =
+        Sac::new(models, od, SacConfig { lr: 3e-4, gamma: 0.99, tau: 0.005, target_entropy: 0.0, ent_init: 0.2 });
     let mut replay = Replay::new(od, ad, 10_000);
     let mut rng = Rng::new(0, Stream::Eval, 0);
     for _ in 0..2048 {
@@ -133,7 +134,9 @@ fn main() {
         println!("| gemm {what} (GFLOP/s) | {:.1} |", gemm_gflops(m, n, k, ta, reps));
     }
     let steps = if quick { 20 } else { 200 };
-    for (arch, name) in [(Arch { width: 64, layers: 3 }, "cpu preset (3x64)"), (Arch { width: 256, layers: 3 }, "3x256")] {
+    for (arch, name) in
+        [(Arch { width: 64, layers: 3 }, "cpu preset (3x64)"), (Arch { width: 256, layers: 3 }, "3x256")]
+    {
         for method in [Method::Dsrl, Method::Equi, Method::Approx] {
             let (sps, fields) = grad_steps_per_s(method, arch, steps);
             let f = if fields > 0 { format!(", {fields} fields") } else { String::new() };

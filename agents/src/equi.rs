@@ -60,9 +60,9 @@ pub fn fields_of(rep: &Representation, offset: usize) -> Result<Vec<Field>> {
         .map(|b| match *b {
             Block::Trivial { index } => Ok(Field::Trivial(index + offset)),
             Block::Rotating { x, y, frequency: 1 } => Ok(Field::Rho1(x + offset, y + offset)),
-            Block::Rotating { frequency, .. } => {
-                Err(Error::InvalidOption(format!("equivariant layers take rho0 and rho1 fields, got frequency {frequency}")))
-            }
+            Block::Rotating { frequency, .. } => Err(Error::InvalidOption(format!(
+                "equivariant layers take rho0 and rho1 fields, got frequency {frequency}"
+            ))),
         })
         .collect()
 }

@@ -76,7 +76,11 @@ impl<T: Real> Circulant<T> {
     }
 
     fn block_dims(&self, k: usize) -> (usize, usize) {
-        if k < 2 { (self.f_in, self.f_out) } else { (2 * self.f_in, 2 * self.f_out) }
+        if k < 2 {
+            (self.f_in, self.f_out)
+        } else {
+            (2 * self.f_in, 2 * self.f_out)
+        }
     }
 
     /// Rebuild the gemm matrices from the parameters.
@@ -172,7 +176,16 @@ impl<T: Real> Circulant<T> {
         let (oi, oo) = (Self::offsets(rows, fi), Self::offsets(rows, fo));
         for k in 0..5 {
             let (n_in, n_out) = self.block_dims(k);
-            gemm(rows, n_out, n_in, &xhat[oi[k]..oi[k + 1]], Trans::N, &self.mats[k], &mut yhat[oo[k]..oo[k + 1]], false);
+            gemm(
+                rows,
+                n_out,
+                n_in,
+                &xhat[oi[k]..oi[k + 1]],
+                Trans::N,
+                &self.mats[k],
+                &mut yhat[oo[k]..oo[k + 1]],
+                false,
+            );
         }
         out.clear();
         out.resize(rows * ORDER * fo, T::ZERO);
@@ -184,7 +197,16 @@ impl<T: Real> Circulant<T> {
     /// Backward from `dy` (rows x 8 F_out): parameter gradients into `grads` (when given), the
     /// input gradient into `dx` (when given).
     #[allow(clippy::too_many_arguments)]
-    pub fn backward(&self, xhat: &[T], dy: &[T], rows: usize, grads: Option<&mut [T]>, dx: Option<&mut Vec<T>>, dyhat: &mut Vec<T>, gm: &mut Vec<T>) {
+    pub fn backward(
+        &self,
+        xhat: &[T],
+        dy: &[T],
+        rows: usize,
+        grads: Option<&mut [T]>,
+        dx: Option<&mut Vec<T>>,
+        dyhat: &mut Vec<T>,
+        gm: &mut Vec<T>,
+    ) {
         let (fi, fo) = (self.f_in, self.f_out);
         // The inverse transform is T^T, so its backward is T.
         self.fourier(dy, rows, fo, dyhat);
@@ -230,7 +252,16 @@ impl<T: Real> Circulant<T> {
             gm.resize(rows * 8 * fi, T::ZERO);
             for k in 0..5 {
                 let (n_in, n_out) = self.block_dims(k);
-                gemm(rows, n_in, n_out, &dyhat[oo[k]..oo[k + 1]], Trans::N, &self.mats_t[k], &mut gm[oi[k]..oi[k + 1]], false);
+                gemm(
+                    rows,
+                    n_in,
+                    n_out,
+                    &dyhat[oo[k]..oo[k + 1]],
+                    Trans::N,
+                    &self.mats_t[k],
+                    &mut gm[oi[k]..oi[k + 1]],
+                    false,
+                );
             }
             dx.clear();
             dx.resize(rows * ORDER * fi, T::ZERO);

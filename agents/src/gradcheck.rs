@@ -15,17 +15,48 @@ use crate::sac::{actor_loss_grad, alpha_loss_grad, concat_rows, critic_loss_grad
 /// One layer, with parameter offsets into its net's flat vector.
 #[derive(Clone, Debug)]
 pub enum LayerSpec {
-    Dense { n_in: usize, n_out: usize, w: usize, b: usize },
+    Dense {
+        n_in: usize,
+        n_out: usize,
+        w: usize,
+        b: usize,
+    },
     /// Dense matrix entry `entries[i]` (row-major `n_in x n_out`) += `coefs[i] * params[w + pidx[i]]`;
     /// bias `bias_out[j]` += `params[w + n_weights + bias_pidx[j]]`; plus a plain path.
-    Equi { n_in: usize, n_out: usize, w: usize, n_weights: usize, entries: Vec<u32>, pidx: Vec<u32>, coefs: Vec<f64>, bias_out: Vec<u32>, bias_pidx: Vec<u32>, plain: Option<(usize, usize)> },
-    LayerNorm { n: usize, g: usize, s: usize },
+    Equi {
+        n_in: usize,
+        n_out: usize,
+        w: usize,
+        n_weights: usize,
+        entries: Vec<u32>,
+        pidx: Vec<u32>,
+        coefs: Vec<f64>,
+        bias_out: Vec<u32>,
+        bias_pidx: Vec<u32>,
+        plain: Option<(usize, usize)>,
+    },
+    LayerNorm {
+        n: usize,
+        g: usize,
+        s: usize,
+    },
     Tanh,
     Relu,
-    PoolHead { fields: usize, order: usize, w: usize, b: usize, plain: Option<(usize, usize)> },
+    PoolHead {
+        fields: usize,
+        order: usize,
+        w: usize,
+        b: usize,
+        plain: Option<(usize, usize)>,
+    },
     /// Fourier-basis regular layer: rho0 (F_in x F_out) at w, rho4 next, then A_k, B_k for
     /// k = 1, 2, 3; bias (F_out) at b.
-    Circulant { f_in: usize, f_out: usize, w: usize, b: usize },
+    Circulant {
+        f_in: usize,
+        f_out: usize,
+        w: usize,
+        b: usize,
+    },
 }
 
 pub fn describe(net: &Net<f64>) -> Vec<LayerSpec> {
@@ -50,7 +81,9 @@ pub fn describe(net: &Net<f64>) -> Vec<LayerSpec> {
             Layer::LayerNorm { n, g, s } => LayerSpec::LayerNorm { n: *n, g: *g, s: *s },
             Layer::Tanh => LayerSpec::Tanh,
             Layer::Relu => LayerSpec::Relu,
-            Layer::PoolHead { fields, order, w, b, plain } => LayerSpec::PoolHead { fields: *fields, order: *order, w: *w, b: *b, plain: *plain },
+            Layer::PoolHead { fields, order, w, b, plain } => {
+                LayerSpec::PoolHead { fields: *fields, order: *order, w: *w, b: *b, plain: *plain }
+            }
             Layer::Circulant(c) => LayerSpec::Circulant { f_in: c.f_in, f_out: c.f_out, w: c.w, b: c.b },
         })
         .collect()
@@ -105,7 +138,14 @@ pub fn grad_case(method: Method, task: &str, seed: u64, rows: usize) -> Result<G
     let eps1 = draw(rows * ad, 1.0);
     let eps2 = draw(rows * ad, 1.0);
     let (log_alpha, gamma, target_entropy) = (0.2f64.ln(), 0.99, 0.0);
-    let batch = Batch { rows, obs: obs.clone(), act: act.clone(), reward: reward.clone(), next_obs: next_obs.clone(), done: done.clone() };
+    let batch = Batch {
+        rows,
+        obs: obs.clone(),
+        act: act.clone(),
+        reward: reward.clone(),
+        next_obs: next_obs.clone(),
+        done: done.clone(),
+    };
     let alpha = log_alpha.exp();
     let mut s2 = ActorSample::default();
     let y = soft_target(&m.head, &m.actor, &m.critics, &batch, &eps2, alpha, gamma, &mut s2);
@@ -114,7 +154,8 @@ pub fn grad_case(method: Method, task: &str, seed: u64, rows: usize) -> Result<G
     let mut critic_grads = [vec![0.0; m.critics[0].num_params()], vec![0.0; m.critics[1].num_params()]];
     let mut critic_losses = [0.0; 2];
     for k in 0..2 {
-        critic_losses[k] = critic_loss_grad(&m.critics[k], &x, &y, &mut critic_grads[k], &mut Tape::default(), &mut Vec::new());
+        critic_losses[k] =
+            critic_loss_grad(&m.critics[k], &x, &y, &mut critic_grads[k], &mut Tape::default(), &mut Vec::new());
     }
     let mut s1 = ActorSample::default();
     m.head.sample(&m.actor, &obs, rows, &eps1, &mut s1);
@@ -130,7 +171,10 @@ pub fn grad_case(method: Method, task: &str, seed: u64, rows: usize) -> Result<G
         latent_dim: ad,
         rows,
         actor: (describe(&m.actor), m.actor.params.clone()),
-        critics: [(describe(&m.critics[0]), m.critics[0].params.clone()), (describe(&m.critics[1]), m.critics[1].params.clone())],
+        critics: [
+            (describe(&m.critics[0]), m.critics[0].params.clone()),
+            (describe(&m.critics[1]), m.critics[1].params.clone()),
+        ],
         log_std_index: m.head.log_std_index.clone(),
         log_std_range: m.head.log_std_range,
         radial,

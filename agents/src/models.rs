@@ -144,7 +144,14 @@ fn head_fields(latent: &[Field], latent_dim: usize) -> Vec<Field> {
     out
 }
 
-fn trunk<'a, T: Real>(mut b: NetBuilder<'a, T>, inputs: &[Field], n_in: usize, fields: usize, layers: usize, residual: bool) -> Result<NetBuilder<'a, T>> {
+fn trunk<'a, T: Real>(
+    mut b: NetBuilder<'a, T>,
+    inputs: &[Field],
+    n_in: usize,
+    fields: usize,
+    layers: usize,
+    residual: bool,
+) -> Result<NetBuilder<'a, T>> {
     let hidden = regular_fields(fields, GROUP_ORDER);
     let width = fields * GROUP_ORDER;
     let basis = Arc::new(Basis::new(inputs, n_in, &hidden, width, GROUP_ORDER)?);
@@ -166,7 +173,9 @@ pub fn equi_param_count(sym: &TaskSymmetry, fields: usize, layers: usize, residu
     let io = io(sym)?;
     let hidden = regular_fields(fields, GROUP_ORDER);
     let width = fields * GROUP_ORDER;
-    let count = |basis: &Basis| basis.n_weights + basis.n_bias + if residual { basis.n_in * basis.n_out + basis.n_out } else { 0 };
+    let count = |basis: &Basis| {
+        basis.n_weights + basis.n_bias + if residual { basis.n_in * basis.n_out + basis.n_out } else { 0 }
+    };
     let trunk_count = |inputs: &[Field], n_in: usize| -> Result<usize> {
         let mut total = count(&Basis::new(inputs, n_in, &hidden, width, GROUP_ORDER)?);
         if layers > 1 {
@@ -175,14 +184,18 @@ pub fn equi_param_count(sym: &TaskSymmetry, fields: usize, layers: usize, residu
         Ok(total)
     };
     let head = head_fields(&io.latent, io.latent_dim);
-    let actor = trunk_count(&io.obs, io.obs_dim)? + count(&Basis::new(&hidden, width, &head, io.latent_dim + io.latent.len(), GROUP_ORDER)?);
-    let critic = trunk_count(&io.critic_in, io.obs_dim + io.latent_dim)? + fields + 1 + if residual { width + 1 } else { 0 };
+    let actor = trunk_count(&io.obs, io.obs_dim)?
+        + count(&Basis::new(&hidden, width, &head, io.latent_dim + io.latent.len(), GROUP_ORDER)?);
+    let critic =
+        trunk_count(&io.critic_in, io.obs_dim + io.latent_dim)? + fields + 1 + if residual { width + 1 } else { 0 };
     Ok(actor + 2 * critic)
 }
 
 /// Parameter count of the DSRL actor + twin critics.
 pub fn mlp_param_count(obs_dim: usize, latent_dim: usize, arch: Arch) -> usize {
-    let body = |n_in: usize| n_in * arch.width + arch.width + 2 * arch.width + (arch.layers - 1) * (arch.width * arch.width + 3 * arch.width);
+    let body = |n_in: usize| {
+        n_in * arch.width + arch.width + 2 * arch.width + (arch.layers - 1) * (arch.width * arch.width + 3 * arch.width)
+    };
     let actor = body(obs_dim) + arch.width * 2 * latent_dim + 2 * latent_dim;
     let critic = body(obs_dim + latent_dim) + arch.width + 1;
     actor + 2 * critic
@@ -219,7 +232,12 @@ impl<T: Real> Models<T> {
                 let actor = mlp(od, arch, 2 * ld, &mut rng[0]);
                 let c0 = mlp(od + ld, arch, 1, &mut rng[1]);
                 let c1 = mlp(od + ld, arch, 1, &mut rng[2]);
-                let head = PolicyHead { dim: ld, log_std_index: (ld..2 * ld).collect(), log_std_range: MLP_LOG_STD, squash: Squash::Tanh };
+                let head = PolicyHead {
+                    dim: ld,
+                    log_std_index: (ld..2 * ld).collect(),
+                    log_std_range: MLP_LOG_STD,
+                    squash: Squash::Tanh,
+                };
                 Ok(Self { actor, critics: [c0, c1], head, fields: 0 })
             }
             Method::Equi | Method::Approx => {
@@ -229,10 +247,16 @@ impl<T: Real> Models<T> {
                 let hidden = regular_fields(fields, GROUP_ORDER);
                 let head_f = head_fields(&io.latent, ld);
                 let head_basis = Arc::new(Basis::new(&hidden, width, &head_f, ld + io.latent.len(), GROUP_ORDER)?);
-                let actor = trunk(NetBuilder::new(od, &mut rng[0]), &io.obs, od, fields, arch.layers, residual)?.equi(head_basis, residual).build();
+                let actor = trunk(NetBuilder::new(od, &mut rng[0]), &io.obs, od, fields, arch.layers, residual)?
+                    .equi(head_basis, residual)
+                    .build();
                 let mut critics = Vec::new();
                 for r in rng[1..].iter_mut() {
-                    critics.push(trunk(NetBuilder::new(od + ld, r), &io.critic_in, od + ld, fields, arch.layers, residual)?.pool_head(GROUP_ORDER, residual).build());
+                    critics.push(
+                        trunk(NetBuilder::new(od + ld, r), &io.critic_in, od + ld, fields, arch.layers, residual)?
+                            .pool_head(GROUP_ORDER, residual)
+                            .build(),
+                    );
                 }
                 let mut log_std_index = vec![0; ld];
                 let (mut pairs, mut singles) = (Vec::new(), Vec::new());
@@ -250,8 +274,14 @@ impl<T: Real> Models<T> {
                         Field::Regular(_) => unreachable!("latent fields are rho0 / rho1"),
                     }
                 }
-                let head = PolicyHead { dim: ld, log_std_index, log_std_range: EQUI_LOG_STD, squash: Squash::Radial { pairs, singles } };
-                let [c0, c1]: [Net<T>; 2] = critics.try_into().map_err(|_| Error::InvalidOption("two critics".into()))?;
+                let head = PolicyHead {
+                    dim: ld,
+                    log_std_index,
+                    log_std_range: EQUI_LOG_STD,
+                    squash: Squash::Radial { pairs, singles },
+                };
+                let [c0, c1]: [Net<T>; 2] =
+                    critics.try_into().map_err(|_| Error::InvalidOption("two critics".into()))?;
                 Ok(Self { actor, critics: [c0, c1], head, fields })
             }
         }
@@ -279,7 +309,8 @@ impl Squash {
                     let s = t / r;
                     a[x] = u[x] * s;
                     a[y] = u[y] * s;
-                    let ratio = if r < T::from_f64(RADIAL_SERIES_BELOW) { T::ONE - r * r / T::from_f64(3.0) } else { s };
+                    let ratio =
+                        if r < T::from_f64(RADIAL_SERIES_BELOW) { T::ONE - r * r / T::from_f64(3.0) } else { s };
                     logdet += (-(t * t) + eps).ln_1p() + ratio.ln();
                 }
                 for &i in singles {

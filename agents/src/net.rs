@@ -48,12 +48,22 @@ pub struct Linear<T> {
 pub enum Layer<T> {
     Linear(Linear<T>),
     /// LayerNorm over `n` features, gain at `g`, shift at `s`.
-    LayerNorm { n: usize, g: usize, s: usize },
+    LayerNorm {
+        n: usize,
+        g: usize,
+        s: usize,
+    },
     Tanh,
     Relu,
     /// Critic head: `q = b + sum_f w_f max_a h(f, a)` over `fields` regular fields of size
     /// `order` (invariant), plus an RPP plain path `b' + v . h` when `plain` is given.
-    PoolHead { fields: usize, order: usize, w: usize, b: usize, plain: Option<(usize, usize)> },
+    PoolHead {
+        fields: usize,
+        order: usize,
+        w: usize,
+        b: usize,
+        plain: Option<(usize, usize)>,
+    },
     /// A regular -> regular C8-equivariant layer run in the Fourier basis ([`crate::fourier`]).
     Circulant(Circulant<T>),
 }
@@ -98,7 +108,12 @@ pub struct NetBuilder<'a, T> {
 
 impl<'a, T: Real> NetBuilder<'a, T> {
     pub fn new(n_in: usize, rng: &'a mut Rng) -> Self {
-        Self { net: Net { n_in, n_out: n_in, layers: Vec::new(), params: Vec::new(), decay: Vec::new() }, width: n_in, rng, decay_of: Vec::new() }
+        Self {
+            net: Net { n_in, n_out: n_in, layers: Vec::new(), params: Vec::new(), decay: Vec::new() },
+            width: n_in,
+            rng,
+            decay_of: Vec::new(),
+        }
     }
 
     fn alloc(&mut self, n: usize, bound: f64, decay: f64) -> usize {
@@ -345,7 +360,14 @@ impl<T: Real> Net<T> {
 
     /// Backward from `dy` (gradient of the output, `rows x n_out`). Adds parameter gradients
     /// into `grads` when given; returns the input gradient when `want_dx`.
-    pub fn backward(&self, tape: &Tape<T>, dy: &[T], mut grads: Option<&mut [T]>, want_dx: bool, scratch: &mut Vec<T>) -> Option<Vec<T>> {
+    pub fn backward(
+        &self,
+        tape: &Tape<T>,
+        dy: &[T],
+        mut grads: Option<&mut [T]>,
+        want_dx: bool,
+        scratch: &mut Vec<T>,
+    ) -> Option<Vec<T>> {
         let rows = tape.rows;
         let mut d = dy[..rows * self.n_out].to_vec();
         let mut next = Vec::new();
@@ -411,7 +433,15 @@ impl<T: Real> Net<T> {
                 Layer::Tanh => ops::tanh_backward(output, &mut d),
                 Layer::Circulant(c) => {
                     let (mut dyhat, mut gm) = (Vec::new(), Vec::new());
-                    c.backward(&tape.aux[l], &d, rows, grads.as_deref_mut(), need_dx.then_some(&mut next), &mut dyhat, &mut gm);
+                    c.backward(
+                        &tape.aux[l],
+                        &d,
+                        rows,
+                        grads.as_deref_mut(),
+                        need_dx.then_some(&mut next),
+                        &mut dyhat,
+                        &mut gm,
+                    );
                     if need_dx {
                         std::mem::swap(&mut d, &mut next);
                     }
@@ -479,11 +509,19 @@ impl<T: Real> Net<T> {
                 Layer::LayerNorm { n, g, s } => Layer::LayerNorm { n: *n, g: *g, s: *s },
                 Layer::Tanh => Layer::Tanh,
                 Layer::Relu => Layer::Relu,
-                Layer::PoolHead { fields, order, w, b, plain } => Layer::PoolHead { fields: *fields, order: *order, w: *w, b: *b, plain: *plain },
+                Layer::PoolHead { fields, order, w, b, plain } => {
+                    Layer::PoolHead { fields: *fields, order: *order, w: *w, b: *b, plain: *plain }
+                }
                 Layer::Circulant(c) => Layer::Circulant(Circulant::new(c.f_in, c.f_out, c.w, c.b)),
             })
             .collect();
-        let mut net = Net { n_in: self.n_in, n_out: self.n_out, layers, params: self.params.iter().map(|v| U::from_f64(v.to_f64())).collect(), decay: self.decay.clone() };
+        let mut net = Net {
+            n_in: self.n_in,
+            n_out: self.n_out,
+            layers,
+            params: self.params.iter().map(|v| U::from_f64(v.to_f64())).collect(),
+            decay: self.decay.clone(),
+        };
         net.expand();
         net
     }

@@ -37,7 +37,18 @@ pub struct Batch<T> {
 
 impl Replay {
     pub fn new(obs_dim: usize, act_dim: usize, capacity: usize) -> Self {
-        Self { obs_dim, act_dim, capacity: capacity.max(1), len: 0, pos: 0, obs: Vec::new(), act: Vec::new(), reward: Vec::new(), next_obs: Vec::new(), done: Vec::new() }
+        Self {
+            obs_dim,
+            act_dim,
+            capacity: capacity.max(1),
+            len: 0,
+            pos: 0,
+            obs: Vec::new(),
+            act: Vec::new(),
+            reward: Vec::new(),
+            next_obs: Vec::new(),
+            done: Vec::new(),
+        }
     }
 
     pub fn len(&self) -> usize {

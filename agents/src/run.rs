@@ -83,8 +83,28 @@ impl Preset {
     /// `cpu` (3 x 64, UTD 4, entropy coefficient from 0.2) or `paper` (3 x 2048, UTD 30/20).
     pub fn named(name: &str) -> Result<Self> {
         match name {
-            "cpu" => Ok(Self { name: name.into(), width: 64, layers: 3, utd: 4, utd_square: None, batch: 256, n_envs: 4, warmup: 1000, ent_init: 0.2 }),
-            "paper" => Ok(Self { name: name.into(), width: 2048, layers: 3, utd: 30, utd_square: Some(20), batch: 256, n_envs: 4, warmup: 6000, ent_init: 1.0 }),
+            "cpu" => Ok(Self {
+                name: name.into(),
+                width: 64,
+                layers: 3,
+                utd: 4,
+                utd_square: None,
+                batch: 256,
+                n_envs: 4,
+                warmup: 1000,
+                ent_init: 0.2,
+            }),
+            "paper" => Ok(Self {
+                name: name.into(),
+                width: 2048,
+                layers: 3,
+                utd: 30,
+                utd_square: Some(20),
+                batch: 256,
+                n_envs: 4,
+                warmup: 6000,
+                ent_init: 1.0,
+            }),
             other => Err(Error::InvalidOption(format!("preset must be 'cpu' or 'paper', got '{other}'"))),
         }
     }
@@ -160,11 +180,19 @@ impl RunConfig {
     }
 
     fn gamma(&self) -> f64 {
-        if self.task == "square" { GAMMA_SQUARE } else { GAMMA }
+        if self.task == "square" {
+            GAMMA_SQUARE
+        } else {
+            GAMMA
+        }
     }
 
     fn utd(&self) -> usize {
-        if self.task == "square" { self.preset.utd_square.unwrap_or(self.preset.utd) } else { self.preset.utd }
+        if self.task == "square" {
+            self.preset.utd_square.unwrap_or(self.preset.utd)
+        } else {
+            self.preset.utd
+        }
     }
 
     /// What must match for a checkpoint to be resumed (not steps, threads or output place).
@@ -290,11 +318,23 @@ fn hash_params<'a>(vs: impl IntoIterator<Item = &'a [f32]>) -> u64 {
 
 fn params_hash(sac: &Sac<f32>) -> u64 {
     let la = [sac.log_alpha];
-    hash_params([&sac.actor.params[..], &sac.critics[0].params, &sac.critics[1].params, &sac.targets[0].params, &sac.targets[1].params, &la[..]])
+    hash_params([
+        &sac.actor.params[..],
+        &sac.critics[0].params,
+        &sac.critics[1].params,
+        &sac.targets[0].params,
+        &sac.targets[1].params,
+        &la[..],
+    ])
 }
 
 /// Denoise `latents` (rows x latent dim, scaled box) for `envs` and run the chunks, on `pool`.
-fn step_envs(pool: &rayon::ThreadPool, envs: &mut [&mut LatentEnv], policy: &DiffusionPolicy, latents: &[f64]) -> Result<Vec<LatentStep>> {
+fn step_envs(
+    pool: &rayon::ThreadPool,
+    envs: &mut [&mut LatentEnv],
+    policy: &DiffusionPolicy,
+    latents: &[f64],
+) -> Result<Vec<LatentStep>> {
     let (od, ad) = (policy.obs_dim(), policy.action_dim());
     let n = envs.len();
     let obs: Vec<f64> = envs.iter_mut().flat_map(|e| e.env_mut().observe().to_vec()).collect();
@@ -367,7 +407,13 @@ impl Runner {
         self.num_timesteps += n as u64;
         for (i, r) in results.iter().enumerate() {
             let next = to_f32(self.envs[i].env_mut().observe());
-            self.replay.push(&obs[i * od..(i + 1) * od], &scaled[i * ad..(i + 1) * ad], r.reward as f32, &next, r.terminated);
+            self.replay.push(
+                &obs[i * od..(i + 1) * od],
+                &scaled[i * ad..(i + 1) * ad],
+                r.reward as f32,
+                &next,
+                r.terminated,
+            );
             if r.terminated || r.truncated {
                 let seed = self.streams.env_seeds.next_u64();
                 self.envs[i].reset(seed)?;
@@ -397,7 +443,8 @@ impl Runner {
             self.eval_envs.push(e);
         }
         let eval_index = self.rows.len() as u64;
-        let mut rngs: Vec<Rng> = (0..episodes as u64).map(|k| Rng::new(self.cfg.seed, Stream::Eval, (eval_index << 32) | k)).collect();
+        let mut rngs: Vec<Rng> =
+            (0..episodes as u64).map(|k| Rng::new(self.cfg.seed, Stream::Eval, (eval_index << 32) | k)).collect();
         for (k, e) in self.eval_envs.iter_mut().enumerate() {
             e.reset(EVAL_SEED + k as u64)?;
         }
@@ -414,7 +461,8 @@ impl Runner {
             }
             let a = self.sac.act(&obs, idx.len(), &eps);
             let latents: Vec<f64> = a.iter().map(|v| *v as f64 * DEFAULT_LATENT_BOUND).collect();
-            let mut refs: Vec<&mut LatentEnv> = self.eval_envs.iter_mut().enumerate().filter(|(k, _)| active[*k]).map(|(_, e)| e).collect();
+            let mut refs: Vec<&mut LatentEnv> =
+                self.eval_envs.iter_mut().enumerate().filter(|(k, _)| active[*k]).map(|(_, e)| e).collect();
             let results = step_envs(&self.pool, &mut refs, &self.policy, &latents)?;
             for (&k, r) in idx.iter().zip(&results) {
                 if r.success {
@@ -473,7 +521,13 @@ impl Runner {
                 c.fingerprint
             )));
         }
-        let fit = |name: &str, got: usize, want: usize| if got == want { Ok(()) } else { Err(bad(format!("{name} has {got} parameters, expected {want}"))) };
+        let fit = |name: &str, got: usize, want: usize| {
+            if got == want {
+                Ok(())
+            } else {
+                Err(bad(format!("{name} has {got} parameters, expected {want}")))
+            }
+        };
         fit("actor", c.actor.len(), self.sac.actor.num_params())?;
         for k in 0..2 {
             fit("critic", c.critics[k].len(), self.sac.critics[k].num_params())?;
@@ -513,7 +567,13 @@ impl Runner {
     fn write_log(&self, dir: &Path) -> Result<()> {
         let mut s = String::from("env_steps,success_rate,mean_q,seconds\n");
         for r in &self.rows {
-            s.push_str(&format!("{},{},{},{:.1}\n", r.env_steps, fmt_float(r.success_rate), fmt_float(r.mean_q), r.seconds));
+            s.push_str(&format!(
+                "{},{},{},{:.1}\n",
+                r.env_steps,
+                fmt_float(r.success_rate),
+                fmt_float(r.mean_q),
+                r.seconds
+            ));
         }
         write_atomic(&dir.join("log.csv"), s.as_bytes())
     }
@@ -521,7 +581,11 @@ impl Runner {
 
 /// Python's spelling of floats in CSV (`nan` for NaN).
 fn fmt_float(v: f64) -> String {
-    if v.is_nan() { "nan".into() } else { format!("{v:?}") }
+    if v.is_nan() {
+        "nan".into()
+    } else {
+        format!("{v:?}")
+    }
 }
 
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
@@ -561,7 +625,13 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
     let arch = Arch { width: cfg.preset.width, layers: cfg.preset.layers };
     let models = Models::<f32>::new(cfg.method, &sym, arch, cfg.seed)?;
     let fields = models.fields;
-    let sac_cfg = SacConfig { lr: LEARNING_RATE, gamma: cfg.gamma(), tau: TAU, target_entropy: TARGET_ENTROPY, ent_init: cfg.ent_init.unwrap_or(cfg.preset.ent_init) };
+    let sac_cfg = SacConfig {
+        lr: LEARNING_RATE,
+        gamma: cfg.gamma(),
+        tau: TAU,
+        target_entropy: TARGET_ENTROPY,
+        ent_init: cfg.ent_init.unwrap_or(cfg.preset.ent_init),
+    };
     let sac = Sac::new(models, obs_dim, sac_cfg);
     let latent_dim = sac.latent_dim();
     let mut r = Runner {
@@ -585,7 +655,10 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
     let ckpt_path = dir.join(CHECKPOINT_FILE);
     if ckpt_path.exists() {
         let bytes = std::fs::read(&ckpt_path).map_err(|e| io_err(&ckpt_path, e))?;
-        let c: Checkpoint = postcard::from_bytes(&bytes).map_err(|e| Error::Checkpoint { path: ckpt_path.display().to_string(), reason: format!("corrupt ({e})") })?;
+        let c: Checkpoint = postcard::from_bytes(&bytes).map_err(|e| Error::Checkpoint {
+            path: ckpt_path.display().to_string(),
+            reason: format!("corrupt ({e})"),
+        })?;
         r.restore(c, &ckpt_path)?;
         r.write_log(&dir)?;
     } else {
@@ -596,7 +669,8 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         // A log from an older run without a checkpoint would mix two runs.
         let _ = std::fs::remove_file(dir.join("log.csv"));
     }
-    let (params_actor, params_critic) = (r.sac.actor.num_params(), r.sac.critics[0].num_params() + r.sac.critics[1].num_params());
+    let (params_actor, params_critic) =
+        (r.sac.actor.num_params(), r.sac.critics[0].num_params() + r.sac.critics[1].num_params());
     let meta = format!(
         "{{\"method\": \"{}\", \"task\": \"{}\", \"seed\": {}, \"steps\": {}, \"preset\": \"{}\", \"joint_limits\": {}, \"agent\": \"rust\", \"fields\": {}, \"params_actor\": {}, \"params_critic\": {}, \"policy\": \"{}\"}}\n",
         cfg.method.name(), cfg.task, cfg.seed, cfg.steps, cfg.preset.name, cfg.joint_limits, fields, params_actor, params_critic, cfg.policy_path().display()
@@ -621,7 +695,10 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
             if cfg.progress {
                 eprintln!(
                     "{}/{}/seed{}: {steps} env steps, success {success_rate:.2}, mean Q {mean_q:.3}, {:.1} s",
-                    cfg.task, cfg.method.name(), cfg.seed, r.elapsed
+                    cfg.task,
+                    cfg.method.name(),
+                    cfg.seed,
+                    r.elapsed
                 );
             }
             evals_now += 1;

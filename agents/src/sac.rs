@@ -85,7 +85,15 @@ impl PolicyHead {
 
     /// Backward of a sample: `ga` = dL/da (rows x dim), `glogp` = dL/dlog pi per row; adds the
     /// actor's parameter gradients into `grads`.
-    pub fn sample_backward<T: Real>(&self, actor: &Net<T>, s: &ActorSample<T>, ga: &[T], glogp: &[T], grads: &mut [T], scratch: &mut Vec<T>) {
+    pub fn sample_backward<T: Real>(
+        &self,
+        actor: &Net<T>,
+        s: &ActorSample<T>,
+        ga: &[T],
+        glogp: &[T],
+        grads: &mut [T],
+        scratch: &mut Vec<T>,
+    ) {
         let (d, rows, width) = (self.dim, s.rows, actor.n_out);
         let out = s.tape.output();
         let mut dout = vec![T::ZERO; rows * width];
@@ -112,7 +120,16 @@ impl PolicyHead {
 /// The soft target `y = r + gamma (1 - terminated) (min_k Q'_k(s', a') - alpha log pi(a'|s'))`,
 /// with `a'` the actor's sample for noise `eps` (kept in `s2`).
 #[allow(clippy::too_many_arguments)]
-pub fn soft_target<T: Real>(head: &PolicyHead, actor: &Net<T>, targets: &[Net<T>; 2], batch: &Batch<T>, eps: &[T], alpha: T, gamma: T, s2: &mut ActorSample<T>) -> Vec<T> {
+pub fn soft_target<T: Real>(
+    head: &PolicyHead,
+    actor: &Net<T>,
+    targets: &[Net<T>; 2],
+    batch: &Batch<T>,
+    eps: &[T],
+    alpha: T,
+    gamma: T,
+    s2: &mut ActorSample<T>,
+) -> Vec<T> {
     let (b, ad) = (batch.rows, head.dim);
     let od = batch.obs.len() / b.max(1);
     head.sample(actor, &batch.next_obs, b, eps, s2);
@@ -131,7 +148,14 @@ pub fn soft_target<T: Real>(head: &PolicyHead, actor: &Net<T>, targets: &[Net<T>
 
 /// One critic's loss `0.5 mean_r (Q(x_r) - y_r)^2` (the SB3 critic loss is the sum over the
 /// twins); its parameter gradient is added into `grads`.
-pub fn critic_loss_grad<T: Real>(critic: &Net<T>, x: &[T], y: &[T], grads: &mut [T], tape: &mut Tape<T>, scratch: &mut Vec<T>) -> f64 {
+pub fn critic_loss_grad<T: Real>(
+    critic: &Net<T>,
+    x: &[T],
+    y: &[T],
+    grads: &mut [T],
+    tape: &mut Tape<T>,
+    scratch: &mut Vec<T>,
+) -> f64 {
     let b = y.len();
     let inv_b = T::from_f64(1.0 / b as f64);
     critic.forward(x, b, tape);
@@ -145,7 +169,16 @@ pub fn critic_loss_grad<T: Real>(critic: &Net<T>, x: &[T], y: &[T], grads: &mut 
 /// The actor loss `mean_r(alpha log pi(a_r|s_r) - min_k Q_k(s_r, a_r))` for the sample `s1`
 /// (taken at `obs`); its gradient with respect to the actor's parameters is added into `grads`.
 #[allow(clippy::too_many_arguments)]
-pub fn actor_loss_grad<T: Real>(head: &PolicyHead, actor: &Net<T>, critics: &[Net<T>; 2], obs: &[T], s1: &ActorSample<T>, alpha: T, grads: &mut [T], scratch: &mut Vec<T>) -> f64 {
+pub fn actor_loss_grad<T: Real>(
+    head: &PolicyHead,
+    actor: &Net<T>,
+    critics: &[Net<T>; 2],
+    obs: &[T],
+    s1: &ActorSample<T>,
+    alpha: T,
+    grads: &mut [T],
+    scratch: &mut Vec<T>,
+) -> f64 {
     let (b, ad) = (s1.rows, head.dim);
     let od = actor.n_in;
     let inv_b = T::from_f64(1.0 / b as f64);
@@ -302,7 +335,16 @@ impl<T: Real> Sac<T> {
         self.log_alpha = la[0];
         // 3. target
         normals(rng, &mut sc.eps);
-        let y = soft_target(&self.head, &self.actor, &self.targets, batch, &sc.eps, alpha, T::from_f64(self.config.gamma), &mut sc.s2);
+        let y = soft_target(
+            &self.head,
+            &self.actor,
+            &self.targets,
+            batch,
+            &sc.eps,
+            alpha,
+            T::from_f64(self.config.gamma),
+            &mut sc.s2,
+        );
         // 4. critics
         concat_rows(&batch.obs, od, &batch.act, ad, b, &mut sc.x);
         let mut critic_loss = 0.0;
@@ -317,7 +359,16 @@ impl<T: Real> Sac<T> {
         // 5. actor through the updated critics
         sc.grads.clear();
         sc.grads.resize(self.actor.num_params(), T::ZERO);
-        let actor_loss = actor_loss_grad(&self.head, &self.actor, &self.critics, &batch.obs, &sc.s1, alpha, &mut sc.grads, &mut sc.lin);
+        let actor_loss = actor_loss_grad(
+            &self.head,
+            &self.actor,
+            &self.critics,
+            &batch.obs,
+            &sc.s1,
+            alpha,
+            &mut sc.grads,
+            &mut sc.lin,
+        );
         self.opt_actor.update(&mut self.actor.params, &sc.grads);
         self.actor.expand();
         // 6. Polyak

@@ -51,7 +51,11 @@ fn check_net(name: &str, net: &Net<f64>) {
         n2.expand();
         let down = eval(&n2, &x);
         let fd = (up - down) / (2.0 * FD_STEP);
-        assert!((fd - g[i]).abs() <= 1e-5 * (1.0 + fd.abs()), "{name}: param {i}: analytic {} vs finite difference {fd}", g[i]);
+        assert!(
+            (fd - g[i]).abs() <= 1e-5 * (1.0 + fd.abs()),
+            "{name}: param {i}: analytic {} vs finite difference {fd}",
+            g[i]
+        );
     }
     for i in (0..x.len()).step_by((x.len() / 20).max(1)) {
         let mut x2 = x.clone();
@@ -60,7 +64,11 @@ fn check_net(name: &str, net: &Net<f64>) {
         x2[i] -= 2.0 * FD_STEP;
         let down = eval(net, &x2);
         let fd = (up - down) / (2.0 * FD_STEP);
-        assert!((fd - dx[i]).abs() <= 1e-5 * (1.0 + fd.abs()), "{name}: input {i}: analytic {} vs finite difference {fd}", dx[i]);
+        assert!(
+            (fd - dx[i]).abs() <= 1e-5 * (1.0 + fd.abs()),
+            "{name}: input {i}: analytic {} vs finite difference {fd}",
+            dx[i]
+        );
     }
 }
 
@@ -105,7 +113,11 @@ fn actor_loss_gradient_matches_finite_differences() {
             a2.expand();
             let down = actor_loss(&m, &a2, &obs, &eps, alpha).0;
             let fd = (up - down) / (2.0 * FD_STEP);
-            assert!((fd - g[i]).abs() <= 1e-5 * (1.0 + fd.abs()), "{method:?} actor loss: param {i}: analytic {} vs finite difference {fd}", g[i]);
+            assert!(
+                (fd - g[i]).abs() <= 1e-5 * (1.0 + fd.abs()),
+                "{method:?} actor loss: param {i}: analytic {} vs finite difference {fd}",
+                g[i]
+            );
         }
     }
 }
@@ -131,7 +143,11 @@ fn critic_and_entropy_losses_match_finite_differences() {
             c2.params[i] -= 2.0 * FD_STEP;
             c2.expand();
             let fd = (up - loss(&c2).0) / (2.0 * FD_STEP);
-            assert!((fd - g[i]).abs() <= 1e-5 * (1.0 + fd.abs()), "{method:?} critic loss: param {i}: {} vs {fd}", g[i]);
+            assert!(
+                (fd - g[i]).abs() <= 1e-5 * (1.0 + fd.abs()),
+                "{method:?} critic loss: param {i}: {} vs {fd}",
+                g[i]
+            );
         }
     }
     let logp = [-3.0, 1.5, 0.25];
@@ -173,15 +189,27 @@ fn actor_and_log_prob_are_equivariant_and_critics_invariant_for_all_8_elements()
             let mut ga = a.clone();
             sym.act_latent(&g, &mut ga).unwrap();
             for (u, v) in s.a.iter().zip(&ga) {
-                assert!((u - v).abs() < 1e-9, "{method:?}: pi(g s) != g pi(s) at {} deg: {u} vs {v}", g.angle().to_degrees());
+                assert!(
+                    (u - v).abs() < 1e-9,
+                    "{method:?}: pi(g s) != g pi(s) at {} deg: {u} vs {v}",
+                    g.angle().to_degrees()
+                );
             }
             for (u, v) in s.logp.iter().zip(&logp) {
-                assert!((u - v).abs() < 1e-9, "{method:?}: log pi changes under {} deg: {u} vs {v}", g.angle().to_degrees());
+                assert!(
+                    (u - v).abs() < 1e-9,
+                    "{method:?}: log pi changes under {} deg: {u} vs {v}",
+                    g.angle().to_degrees()
+                );
             }
             concat_rows(&gobs, od, &ga, ad, ROWS, &mut x);
             m.critics[0].forward(&x, ROWS, &mut tape);
             for (u, v) in tape.output().iter().zip(&q) {
-                assert!((u - v).abs() < 1e-9, "{method:?}: Q(g s, g a) != Q(s, a) at {} deg: {u} vs {v}", g.angle().to_degrees());
+                assert!(
+                    (u - v).abs() < 1e-9,
+                    "{method:?}: Q(g s, g a) != Q(s, a) at {} deg: {u} vs {v}",
+                    g.angle().to_degrees()
+                );
             }
         }
     }

@@ -15,7 +15,17 @@ const GOLDEN: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/golden/lift_sho
 
 fn tiny(method: Method, out: &Path) -> RunConfig {
     let mut c = RunConfig::new(method, "lift", 3, 384, out).unwrap();
-    c.preset = Preset { name: "test".into(), width: 16, layers: 2, utd: 1, utd_square: None, batch: 32, n_envs: 4, warmup: 48, ent_init: 0.2 };
+    c.preset = Preset {
+        name: "test".into(),
+        width: 16,
+        layers: 2,
+        utd: 1,
+        utd_square: None,
+        batch: 32,
+        n_envs: 4,
+        warmup: 48,
+        ent_init: 0.2,
+    };
     c.eval_every = 128;
     c.eval_episodes = 3;
     c.horizon = Some(48);

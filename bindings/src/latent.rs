@@ -4,13 +4,16 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use equigym_envs::AutoresetMode;
+use equigym_envs::Env as RustEnv;
 use equigym_wrappers::latent::{latent_batch, LatentBatchEnv, LatentEnv as RustLatentEnv, DEFAULT_LATENT_BOUND};
 use equigym_wrappers::DiffusionPolicy as RustPolicy;
 use numpy::ndarray::Array3;
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn,
+    PyUntypedArrayMethods,
+};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyTuple};
-use equigym_envs::Env as RustEnv;
 
 use crate::errors::{invalid_input, to_py};
 use crate::options::{env_config, options_kwargs};
@@ -151,7 +154,10 @@ impl LatentEnv {
 
     /// Pickling: the arguments that rebuild this environment (the policy pickles as its bytes) ...
     fn __getnewargs_ex__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyTuple>, Bound<'py, PyDict>)> {
-        let args = PyTuple::new(py, [self.inner.env().task().id().into_pyobject(py)?.into_any(), self.policy.bind(py).clone().into_any()])?;
+        let args = PyTuple::new(
+            py,
+            [self.inner.env().task().id().into_pyobject(py)?.into_any(), self.policy.bind(py).clone().into_any()],
+        )?;
         let kwargs = options_kwargs(py, self.inner.env().config())?;
         kwargs.set_item("bound", self.inner.bound())?;
         kwargs.set_item("ddim_steps", self.inner.ddim_steps())?;
@@ -199,7 +205,11 @@ impl LatentEnv {
     }
 
     /// The action chunk of `latent` at the current observation, without stepping.
-    fn decode<'py>(&mut self, py: Python<'py>, latent: PyReadonlyArray1<'py, f64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    fn decode<'py>(
+        &mut self,
+        py: Python<'py>,
+        latent: PyReadonlyArray1<'py, f64>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
         let w = latent.as_slice().map_err(|e| invalid_input(format!("latent: {e}")))?.to_vec();
         Ok(self.inner.decode(&w).map_err(to_py)?.into_pyarray(py))
     }
@@ -299,7 +309,12 @@ impl LatentVecEnv {
 
     /// Reset the environments (all, or those where `mask` is true), one seed each.
     #[pyo3(signature = (seeds, mask=None))]
-    fn reset<'py>(&mut self, py: Python<'py>, seeds: Vec<u64>, mask: Option<Vec<bool>>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    fn reset<'py>(
+        &mut self,
+        py: Python<'py>,
+        seeds: Vec<u64>,
+        mask: Option<Vec<bool>>,
+    ) -> PyResult<Bound<'py, PyArray2<f32>>> {
         reset_batch(py, &mut self.inner, seeds, mask)
     }
 
@@ -312,8 +327,13 @@ impl LatentVecEnv {
     fn executed<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u64>> {
         (0..self.inner.num_envs())
             .map(|i| {
-                let skipped = self.inner.was_reset(i) == Some(true) && self.inner.autoreset_mode() == AutoresetMode::NextStep;
-                if skipped { 0 } else { self.inner.env(i).map_or(0, |e| e.last_executed() as u64) }
+                let skipped =
+                    self.inner.was_reset(i) == Some(true) && self.inner.autoreset_mode() == AutoresetMode::NextStep;
+                if skipped {
+                    0
+                } else {
+                    self.inner.env(i).map_or(0, |e| e.last_executed() as u64)
+                }
             })
             .collect::<Vec<_>>()
             .into_pyarray(py)

@@ -80,12 +80,19 @@ impl Env {
     ) -> PyResult<(Bound<'py, PyArray1<f64>>, f64, bool, bool, Bound<'py, PyDict>)> {
         let action = action.as_slice().map_err(|e| invalid_input(format!("action: {e}")))?.to_vec();
         let inner = &mut self.inner;
-        let (result, obs) = py.detach(|| {
-            let r = inner.step(&action)?;
-            Ok::<_, EnvError>((r, inner.observe().to_vec()))
-        })
-        .map_err(to_py)?;
-        Ok((obs.into_pyarray(py), result.reward, result.terminated, result.truncated, info_dict(py, &result.evaluation)?))
+        let (result, obs) = py
+            .detach(|| {
+                let r = inner.step(&action)?;
+                Ok::<_, EnvError>((r, inner.observe().to_vec()))
+            })
+            .map_err(to_py)?;
+        Ok((
+            obs.into_pyarray(py),
+            result.reward,
+            result.terminated,
+            result.truncated,
+            info_dict(py, &result.evaluation)?,
+        ))
     }
 
     /// The current observation.

@@ -25,7 +25,9 @@ fn to_value(obj: &Bound<'_, PyAny>, at: &str) -> PyResult<Value> {
     if obj.is_instance_of::<PyInt>() {
         return match obj.extract::<i64>() {
             Ok(v) => Ok(Value::from(v)),
-            Err(_) => Ok(Value::from(obj.extract::<u64>().map_err(|_| invalid_input(format!("{at}: integer out of range")))?)),
+            Err(_) => {
+                Ok(Value::from(obj.extract::<u64>().map_err(|_| invalid_input(format!("{at}: integer out of range")))?))
+            }
         };
     }
     if obj.is_instance_of::<PyFloat>() {
@@ -38,7 +40,8 @@ fn to_value(obj: &Bound<'_, PyAny>, at: &str) -> PyResult<Value> {
     if let Ok(dict) = obj.cast::<PyDict>() {
         let mut map = Map::new();
         for (k, v) in dict.iter() {
-            let key: String = k.extract().map_err(|_| invalid_input(format!("{at}: keys must be strings, got {k:?}")))?;
+            let key: String =
+                k.extract().map_err(|_| invalid_input(format!("{at}: keys must be strings, got {k:?}")))?;
             let value = to_value(&v, &format!("{at}.{key}"))?;
             map.insert(key, value);
         }
@@ -73,9 +76,8 @@ fn to_python<'py>(py: Python<'py>, value: &Value) -> PyResult<Bound<'py, PyAny>>
             _ => Err(invalid_input(format!("unrepresentable number {n}"))),
         },
         Value::String(s) => s.into_bound_py_any(py),
-        Value::Array(items) => {
-            PyList::new(py, items.iter().map(|v| to_python(py, v)).collect::<PyResult<Vec<_>>>()?)?.into_bound_py_any(py)
-        }
+        Value::Array(items) => PyList::new(py, items.iter().map(|v| to_python(py, v)).collect::<PyResult<Vec<_>>>()?)?
+            .into_bound_py_any(py),
         Value::Object(map) => {
             let dict = PyDict::new(py);
             for (k, v) in map {

@@ -36,7 +36,8 @@ pub fn steer_run<'py>(
     progress: bool,
     stop_after_evals: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let mut cfg = RunConfig::new(Method::parse(method).map_err(agents_err)?, task, seed, steps, out).map_err(agents_err)?;
+    let mut cfg =
+        RunConfig::new(Method::parse(method).map_err(agents_err)?, task, seed, steps, out).map_err(agents_err)?;
     cfg.threads = threads;
     cfg.preset = Preset::named(preset).map_err(agents_err)?;
     cfg.joint_limits = joint_limits;
@@ -44,7 +45,11 @@ pub fn steer_run<'py>(
         None => None,
         Some("joint") => Some(false),
         Some("cartesian") => Some(true),
-        Some(other) => return Err(crate::errors::invalid_input(format!("controller must be 'joint' or 'cartesian', got '{other}'"))),
+        Some(other) => {
+            return Err(crate::errors::invalid_input(format!(
+                "controller must be 'joint' or 'cartesian', got '{other}'"
+            )))
+        }
     };
     cfg.eval_every = eval_every;
     cfg.eval_episodes = eval_episodes;
@@ -56,7 +61,8 @@ pub fn steer_run<'py>(
     let s = py.detach(|| run(&cfg)).map_err(agents_err)?;
     let d = PyDict::new(py);
     d.set_item("run_dir", s.run_dir)?;
-    let rows: Vec<(u64, f64, f64, f64)> = s.rows.iter().map(|r| (r.env_steps, r.success_rate, r.mean_q, r.seconds)).collect();
+    let rows: Vec<(u64, f64, f64, f64)> =
+        s.rows.iter().map(|r| (r.env_steps, r.success_rate, r.mean_q, r.seconds)).collect();
     d.set_item("rows", rows)?;
     d.set_item("env_steps", s.env_steps)?;
     d.set_item("grad_steps", s.grad_steps)?;
@@ -119,7 +125,10 @@ fn layer_dict<'py>(py: Python<'py>, l: &equigym_agents::gradcheck::LayerSpec) ->
     Ok(d)
 }
 
-fn net_dict<'py>(py: Python<'py>, net: &(Vec<equigym_agents::gradcheck::LayerSpec>, Vec<f64>)) -> PyResult<Bound<'py, PyDict>> {
+fn net_dict<'py>(
+    py: Python<'py>,
+    net: &(Vec<equigym_agents::gradcheck::LayerSpec>, Vec<f64>),
+) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     let layers = net.0.iter().map(|l| layer_dict(py, l)).collect::<PyResult<Vec<_>>>()?;
     d.set_item("layers", layers)?;
@@ -131,8 +140,15 @@ fn net_dict<'py>(py: Python<'py>, net: &(Vec<equigym_agents::gradcheck::LayerSpe
 /// Rust losses and gradients, for parity tests against an independent implementation.
 #[pyfunction]
 #[pyo3(signature = (method, task="lift", seed=0, rows=6))]
-pub fn steer_gradcase<'py>(py: Python<'py>, method: &str, task: &str, seed: u64, rows: usize) -> PyResult<Bound<'py, PyDict>> {
-    let c = equigym_agents::gradcheck::grad_case(Method::parse(method).map_err(agents_err)?, task, seed, rows).map_err(agents_err)?;
+pub fn steer_gradcase<'py>(
+    py: Python<'py>,
+    method: &str,
+    task: &str,
+    seed: u64,
+    rows: usize,
+) -> PyResult<Bound<'py, PyDict>> {
+    let c = equigym_agents::gradcheck::grad_case(Method::parse(method).map_err(agents_err)?, task, seed, rows)
+        .map_err(agents_err)?;
     let d = PyDict::new(py);
     d.set_item("obs_dim", c.obs_dim)?;
     d.set_item("latent_dim", c.latent_dim)?;
@@ -142,7 +158,18 @@ pub fn steer_gradcase<'py>(py: Python<'py>, method: &str, task: &str, seed: u64,
     d.set_item("log_std_index", c.log_std_index)?;
     d.set_item("log_std_range", c.log_std_range)?;
     d.set_item("radial", c.radial)?;
-    for (k, v) in [("obs", c.obs), ("act", c.act), ("reward", c.reward), ("next_obs", c.next_obs), ("done", c.done), ("eps1", c.eps1), ("eps2", c.eps2), ("y", c.y), ("logp", c.logp), ("actor_grad", c.actor_grad)] {
+    for (k, v) in [
+        ("obs", c.obs),
+        ("act", c.act),
+        ("reward", c.reward),
+        ("next_obs", c.next_obs),
+        ("done", c.done),
+        ("eps1", c.eps1),
+        ("eps2", c.eps2),
+        ("y", c.y),
+        ("logp", c.logp),
+        ("actor_grad", c.actor_grad),
+    ] {
         d.set_item(k, v)?;
     }
     d.set_item("critic_grads", vec![c.critic_grads[0].clone(), c.critic_grads[1].clone()])?;

@@ -4,9 +4,7 @@
 
 use equigym_envs::TaskOptions;
 use equigym_wrappers::breaking::{measure, BreakingConfig};
-use equigym_wrappers::{
-    transform_state, Block, Group, PlanarRotation, Representation, TaskSymmetry as RustSymmetry,
-};
+use equigym_wrappers::{transform_state, Block, Group, PlanarRotation, Representation, TaskSymmetry as RustSymmetry};
 use numpy::ndarray::{ArrayD, IxDyn};
 use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyReadonlyArray1, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -155,7 +153,8 @@ impl TaskSymmetry {
         data: PyReadonlyArrayDyn<'py, f64>,
         angles: PyReadonlyArray1<'py, f64>,
     ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        let elements = angles.as_slice()?.iter().map(|a| PlanarRotation::new(*a)).collect::<Result<Vec<_>, _>>().map_err(to_py)?;
+        let elements =
+            angles.as_slice()?.iter().map(|a| PlanarRotation::new(*a)).collect::<Result<Vec<_>, _>>().map_err(to_py)?;
         self.apply(py, space, data, elements)
     }
     /// The representation matrix of element `element` (index) or of rotation `angle`.
@@ -170,7 +169,8 @@ impl TaskSymmetry {
         let g = self.one_element(element, angle)?;
         let rep = self.representation(space)?;
         let d = rep.dim();
-        let m = numpy::ndarray::Array2::from_shape_vec((d, d), rep.matrix(&g)).map_err(|e| invalid_input(e.to_string()))?;
+        let m =
+            numpy::ndarray::Array2::from_shape_vec((d, d), rep.matrix(&g)).map_err(|e| invalid_input(e.to_string()))?;
         Ok(m.into_pyarray(py))
     }
     /// g . s: rotate the environment's state in place (objects, hand, fingers; the base

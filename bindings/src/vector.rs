@@ -186,10 +186,7 @@ impl VecEnv {
 
     /// The full state of environment `i` (as `Env.get_state`).
     fn get_state<'py>(&self, py: Python<'py>, i: usize) -> PyResult<Bound<'py, pyo3::types::PyBytes>> {
-        let env = self
-            .inner
-            .env(i)
-            .ok_or_else(|| invalid_input(format!("environment index {i} out of range")))?;
+        let env = self.inner.env(i).ok_or_else(|| invalid_input(format!("environment index {i} out of range")))?;
         Ok(pyo3::types::PyBytes::new(py, &env.get_state().map_err(to_py)?))
     }
 

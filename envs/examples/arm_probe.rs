@@ -20,7 +20,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         env.step(&hold)?;
     }
     let end = env.scene().tcp_pose();
-    println!("hold drift {:.2e} m, fingers {:?}", (end.translation.vector - tcp.translation.vector).norm(), env.scene().finger_positions());
+    println!(
+        "hold drift {:.2e} m, fingers {:?}",
+        (end.translation.vector - tcp.translation.vector).norm(),
+        env.scene().finger_positions()
+    );
     let mut expert = make_expert("lift", ExpertOptions::default())?;
     let mut ok = 0;
     let mut steps = 0;

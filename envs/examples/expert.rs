@@ -17,7 +17,13 @@ struct Episode {
     starts: Vec<(f64, f64, f64)>,
 }
 
-fn table(title: &str, episodes: &[Episode], bins: usize, key: impl Fn(&Episode) -> usize, label: impl Fn(usize) -> String) {
+fn table(
+    title: &str,
+    episodes: &[Episode],
+    bins: usize,
+    key: impl Fn(&Episode) -> usize,
+    label: impl Fn(usize) -> String,
+) {
     let mut n = vec![0usize; bins];
     let mut ok = vec![0usize; bins];
     for e in episodes {
@@ -91,17 +97,31 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     for (k, name) in names.iter().enumerate() {
         let deg = 360.0 / 8.0;
-        table(&format!("success by initial {name} yaw"), &log, 8, |e| (e.starts[k].2.to_degrees() / deg) as usize, |b| {
-            format!("yaw {:>3.0}..{:<3.0} deg", b as f64 * deg, (b + 1) as f64 * deg)
-        });
+        table(
+            &format!("success by initial {name} yaw"),
+            &log,
+            8,
+            |e| (e.starts[k].2.to_degrees() / deg) as usize,
+            |b| format!("yaw {:>3.0}..{:<3.0} deg", b as f64 * deg, (b + 1) as f64 * deg),
+        );
         // Distance from the robot base (x = -0.56): reach is where the arm's limits bite.
-        table(&format!("success by {name} distance from the robot base"), &log, 6, |e| {
-            let d = ((e.starts[k].0 + 0.56).powi(2) + e.starts[k].1.powi(2)).sqrt();
-            ((d - 0.3) / 0.1).max(0.0) as usize
-        }, |b| format!("{:.1}..{:.1} m", 0.3 + 0.1 * b as f64, 0.4 + 0.1 * b as f64));
-        table(&format!("success by {name} quadrant"), &log, 4, |e| {
-            (e.starts[k].0 >= 0.0) as usize * 2 + (e.starts[k].1 >= 0.0) as usize
-        }, |b| format!("x {} 0, y {} 0", if b >= 2 { ">=" } else { "<" }, if b % 2 == 1 { ">=" } else { "<" }));
+        table(
+            &format!("success by {name} distance from the robot base"),
+            &log,
+            6,
+            |e| {
+                let d = ((e.starts[k].0 + 0.56).powi(2) + e.starts[k].1.powi(2)).sqrt();
+                ((d - 0.3) / 0.1).max(0.0) as usize
+            },
+            |b| format!("{:.1}..{:.1} m", 0.3 + 0.1 * b as f64, 0.4 + 0.1 * b as f64),
+        );
+        table(
+            &format!("success by {name} quadrant"),
+            &log,
+            4,
+            |e| (e.starts[k].0 >= 0.0) as usize * 2 + (e.starts[k].1 >= 0.0) as usize,
+            |b| format!("x {} 0, y {} 0", if b >= 2 { ">=" } else { "<" }, if b % 2 == 1 { ">=" } else { "<" }),
+        );
     }
     if let Some(path) = image {
         env.reset(0)?;

@@ -43,9 +43,30 @@ fn config(s: &Setting, horizon: usize) -> EnvConfig {
 fn main() {
     let episodes: u64 = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(4);
     let settings = [
-        Setting { name: "contacts 240 / 960 Hz", iterations: 4, substeps: 12, static_hz: 960.0, contact_hz: 240.0, armature: 0.1 },
-        Setting { name: "contacts 480 / 960 Hz", iterations: 4, substeps: 12, static_hz: 960.0, contact_hz: 480.0, armature: 0.1 },
-        Setting { name: "contacts 480 / 1920 Hz", iterations: 4, substeps: 12, static_hz: 1920.0, contact_hz: 480.0, armature: 0.1 },
+        Setting {
+            name: "contacts 240 / 960 Hz",
+            iterations: 4,
+            substeps: 12,
+            static_hz: 960.0,
+            contact_hz: 240.0,
+            armature: 0.1,
+        },
+        Setting {
+            name: "contacts 480 / 960 Hz",
+            iterations: 4,
+            substeps: 12,
+            static_hz: 960.0,
+            contact_hz: 480.0,
+            armature: 0.1,
+        },
+        Setting {
+            name: "contacts 480 / 1920 Hz",
+            iterations: 4,
+            substeps: 12,
+            static_hz: 1920.0,
+            contact_hz: 480.0,
+            armature: 0.1,
+        },
     ];
     println!("| setting | deepest robot (mm) | deepest object (mm) | finger past travel (mm) | 20 s hold slip, max (mm) | adversarial steps/s |");
     println!("|---|---|---|---|---|---|");
@@ -105,13 +126,24 @@ fn main() {
                 env.step(&action).unwrap();
                 lifting += (expert.phase() == "lift") as usize;
             }
-            let rel = |env: &Env| env.scene().tcp_pose().inverse() * from_pose(env.scene().world.bodies[env.task().objects()[0].body].position());
+            let rel = |env: &Env| {
+                env.scene().tcp_pose().inverse()
+                    * from_pose(env.scene().world.bodies[env.task().objects()[0].body].position())
+            };
             let start = rel(&env);
             for _ in 0..400 {
                 env.step(&action).unwrap();
             }
             slip = slip.max((rel(&env).translation.vector - start.translation.vector).norm());
         }
-        println!("| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} |", s.name, robot * 1e3, object * 1e3, finger.max(0.0) * 1e3, slip * 1e3, rate);
+        println!(
+            "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} |",
+            s.name,
+            robot * 1e3,
+            object * 1e3,
+            finger.max(0.0) * 1e3,
+            slip * 1e3,
+            rate
+        );
     }
 }

@@ -14,8 +14,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut env = Env::new(EnvConfig::new(task))?;
     let mut rng = EpisodeRng::from_seed(0);
     let (lo, hi) = env.action_bounds();
-    let actions: Vec<[f64; 10]> =
-        (0..steps).map(|_| std::array::from_fn(|k| rng.uniform(lo[k], hi[k]))).collect();
+    let actions: Vec<[f64; 10]> = (0..steps).map(|_| std::array::from_fn(|k| rng.uniform(lo[k], hi[k]))).collect();
     env.reset(0)?;
     let start = Instant::now();
     let mut resets = 0.0;

@@ -226,7 +226,8 @@ impl<E: BatchMember, D: ActionDecoder> BatchEnv<E, D> {
     }
 
     fn build(envs: Vec<E>, decoder: Option<D>, threads: usize, mode: AutoresetMode) -> Result<Self> {
-        let first = envs.first().ok_or_else(|| EnvError::InvalidConfig("a batch needs at least one environment".into()))?;
+        let first =
+            envs.first().ok_or_else(|| EnvError::InvalidConfig("a batch needs at least one environment".into()))?;
         let (obs_dim, member_action_dim) = (first.observation_dim(), first.action_dim());
         if envs.iter().any(|e| e.observation_dim() != obs_dim || e.action_dim() != member_action_dim) {
             return Err(EnvError::InvalidConfig("all environments of a batch need the same dimensions".into()));
@@ -327,7 +328,11 @@ impl<E: BatchMember, D: ActionDecoder> BatchEnv<E, D> {
         let n = self.slots.len();
         let dim = self.action_dim();
         if actions.len() != n * dim {
-            return Err(EnvError::WrongLength { what: format!("actions ({n} x {dim})"), expected: n * dim, got: actions.len() });
+            return Err(EnvError::WrongLength {
+                what: format!("actions ({n} x {dim})"),
+                expected: n * dim,
+                got: actions.len(),
+            });
         }
         for (i, row) in actions.chunks_exact(dim).enumerate() {
             // Environments that reset on this step ignore their action, but a bad one is still an error.

@@ -16,8 +16,8 @@ use crate::options::EnvSpec;
 use crate::rng::EpisodeRng;
 use crate::robot::{load_urdf, parse_urdf, IkReport, RobotModel};
 use crate::scene::Scene;
-use crate::world::PhysicsConfig;
 use crate::tasks::{make_task, Evaluation, RewardKind, Task, TaskOptions};
+use crate::world::PhysicsConfig;
 
 /// The robot description shipped with equigym.
 pub const PANDA_URDF: &str = include_str!("../../assets/panda/panda.urdf");
@@ -348,10 +348,14 @@ impl Env {
     pub fn set_state(&mut self, bytes: &[u8]) -> Result<()> {
         let payload = match bytes.len().checked_sub(STATE_CHECKSUM_LEN) {
             Some(n) if state_checksum(&bytes[..n]).to_le_bytes() == bytes[n..] => &bytes[..n],
-            _ => return Err(EnvError::InvalidState("not an equigym state (checksum mismatch: edited or truncated bytes)".into())),
+            _ => {
+                return Err(EnvError::InvalidState(
+                    "not an equigym state (checksum mismatch: edited or truncated bytes)".into(),
+                ))
+            }
         };
-        let saved: SavedState = postcard::from_bytes(payload)
-            .map_err(|e| EnvError::InvalidState(format!("not an equigym state ({e})")))?;
+        let saved: SavedState =
+            postcard::from_bytes(payload).map_err(|e| EnvError::InvalidState(format!("not an equigym state ({e})")))?;
         if saved.task != self.task.id() {
             return Err(EnvError::InvalidState(format!(
                 "the state is from task '{}', this environment runs '{}'",

@@ -96,9 +96,10 @@ impl Layout {
 
     /// The 10-d absolute end-effector action every task takes.
     pub fn action() -> Self {
-        Layout::new()
-            .with("position", FieldKind::Position, 3)
-            .with("rotation_6d", FieldKind::Rotation6d, 6)
-            .with("gripper_width", FieldKind::Invariant, 1)
+        Layout::new().with("position", FieldKind::Position, 3).with("rotation_6d", FieldKind::Rotation6d, 6).with(
+            "gripper_width",
+            FieldKind::Invariant,
+            1,
+        )
     }
 }

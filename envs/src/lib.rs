@@ -42,5 +42,5 @@ pub use env::{Env, EnvConfig, StepResult, ACTION_DIM};
 pub use error::{EnvError, Result};
 pub use layout::{Field, FieldKind, Layout};
 pub use options::{Controller, EnvOptions, EnvSpec};
-pub use world::PhysicsConfig;
 pub use tasks::{RewardKind, TaskOptions};
+pub use world::PhysicsConfig;

@@ -18,8 +18,8 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use crate::env::EnvConfig;
 use crate::error::{EnvError, Result};
 use crate::layout::Layout;
-use crate::PhysicsConfig;
 use crate::tasks::{RewardKind, TaskOptions};
+use crate::PhysicsConfig;
 
 /// Std of the Gaussian noise added to the home joint configuration at reset (rad), by default.
 pub const DEFAULT_INIT_JOINT_NOISE: f64 = 0.02;
@@ -170,7 +170,8 @@ mod tests {
 
     #[test]
     fn switches_override_physics_and_zero_horizon_is_refused() {
-        let mut options = EnvOptions { joint_limits: Some(false), controller: Some(Controller::Cartesian), ..Default::default() };
+        let mut options =
+            EnvOptions { joint_limits: Some(false), controller: Some(Controller::Cartesian), ..Default::default() };
         let config = options.clone().into_config("lift").unwrap();
         assert!(!config.physics.joint_limits && config.physics.cartesian_control);
         options.horizon = Some(0);

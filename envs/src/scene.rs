@@ -62,7 +62,13 @@ struct SceneStateRef<'a> {
 impl Scene {
     /// Build the world with the table, and the robot at joint configuration `home` with open
     /// fingers.
-    pub fn new(robot: Arc<RobotModel>, base: Isometry3<f64>, home: &[f64], table: TableSpec, config: PhysicsConfig) -> Result<Self> {
+    pub fn new(
+        robot: Arc<RobotModel>,
+        base: Isometry3<f64>,
+        home: &[f64],
+        table: TableSpec,
+        config: PhysicsConfig,
+    ) -> Result<Self> {
         config.validate()?;
         let (mut world, statics) = build_world(&config, &table);
         let open = robot.fingers[0].upper;
@@ -71,7 +77,8 @@ impl Scene {
         let seeds = seed_bank(&robot, home);
         let mut q = home.to_vec();
         rig.clamp_to_limits(&mut q);
-        let ctx = ControlContext { model: &robot, base: &base, ik: &ik, seeds: &seeds, period: config.control_period() };
+        let ctx =
+            ControlContext { model: &robot, base: &base, ik: &ik, seeds: &seeds, period: config.control_period() };
         let controller = Controller::new(config.cartesian_control, &ctx, &q);
         Ok(Self { world, rig, statics, config, controller, finger_cmd: open, ik, seeds })
     }
@@ -240,7 +247,13 @@ impl Scene {
         self.rig.set_joint_velocities(&mut self.world, qd_new.as_slice());
         self.rig.set_finger_targets(&mut self.world, self.finger_cmd);
         let mut controller = self.controller.clone();
-        let ctx = ControlContext { model: &model, base: &base, ik: &opts, seeds: &self.seeds, period: self.config.control_period() };
+        let ctx = ControlContext {
+            model: &model,
+            base: &base,
+            ik: &opts,
+            seeds: &self.seeds,
+            period: self.config.control_period(),
+        };
         let fit_cmd = controller.get().transform(&ctx, motion, &q_new);
         self.controller = controller;
         worse(fit, fit_cmd)
@@ -248,8 +261,12 @@ impl Scene {
 
     /// Serialise the dynamic state (bodies, contacts, joints, controller) to bytes.
     pub fn save(&self) -> Result<Vec<u8>> {
-        postcard::to_stdvec(&SceneStateRef { world: &self.world, controller: &self.controller, finger_cmd: self.finger_cmd })
-            .map_err(|e| EnvError::InvalidState(format!("cannot serialise the scene: {e}")))
+        postcard::to_stdvec(&SceneStateRef {
+            world: &self.world,
+            controller: &self.controller,
+            finger_cmd: self.finger_cmd,
+        })
+        .map_err(|e| EnvError::InvalidState(format!("cannot serialise the scene: {e}")))
     }
 
     /// Restore a state produced by [`Scene::save`] on a scene of the same task.

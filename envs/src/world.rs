@@ -103,7 +103,11 @@ impl PhysicsConfig {
                 return Err(EnvError::InvalidConfig(format!("{name} must be positive and finite, got {v}")));
             }
         }
-        for (name, v) in [("joint_damping", self.joint_damping), ("joint_armature", self.joint_armature), ("finger_armature", self.finger_armature)] {
+        for (name, v) in [
+            ("joint_damping", self.joint_damping),
+            ("joint_armature", self.joint_armature),
+            ("finger_armature", self.finger_armature),
+        ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(EnvError::InvalidConfig(format!("{name} must be finite and >= 0, got {v}")));
             }
@@ -112,7 +116,9 @@ impl PhysicsConfig {
             return Err(EnvError::InvalidConfig(format!("timestep must be at most 0.05 s, got {}", self.timestep)));
         }
         if self.substeps == 0 || self.substeps > 1000 || self.solver_iterations == 0 || self.solver_iterations > 100 {
-            return Err(EnvError::InvalidConfig("substeps must be in 1..=1000 and solver_iterations in 1..=100".into()));
+            return Err(EnvError::InvalidConfig(
+                "substeps must be in 1..=1000 and solver_iterations in 1..=100".into(),
+            ));
         }
         Ok(())
     }
@@ -166,7 +172,11 @@ pub fn build_world(config: &PhysicsConfig, table: &TableSpec) -> (PhysicsWorld, 
     // The table is a solid block down to the floor: a thin top lets a squeezed object tunnel
     // through, while a block always pushes it back out through the top.
     let thickness = table.top as f32;
-    let body = world.insert_body(RigidBodyBuilder::fixed().translation(Vector::new(0.0, 0.0, table.top as f32 - thickness / 2.0)));
+    let body = world.insert_body(RigidBodyBuilder::fixed().translation(Vector::new(
+        0.0,
+        0.0,
+        table.top as f32 - thickness / 2.0,
+    )));
     let table = world.insert_collider(
         ColliderBuilder::cuboid(table.half_extents[0] as f32, table.half_extents[1] as f32, thickness / 2.0)
             .friction(config.friction as f32)
@@ -197,7 +207,11 @@ pub fn penetration_depth(world: &PhysicsWorld, a: ColliderHandle, b: ColliderHan
 }
 
 /// The deepest penetration between any collider of `a` and any of `b`.
-pub fn deepest_penetration(world: &PhysicsWorld, a: impl IntoIterator<Item = ColliderHandle>, b: &[ColliderHandle]) -> f64 {
+pub fn deepest_penetration(
+    world: &PhysicsWorld,
+    a: impl IntoIterator<Item = ColliderHandle>,
+    b: &[ColliderHandle],
+) -> f64 {
     let mut deepest: f64 = 0.0;
     for x in a {
         for y in b {
@@ -219,7 +233,9 @@ pub fn shape_of(s: &ShapeKind) -> SharedShape {
 /// rapier's cylinders run along y; URDF's along z.
 fn shape_pose(s: &LinkShape) -> Isometry3<f64> {
     match s.shape {
-        ShapeKind::Cylinder { .. } => s.pose * nalgebra::UnitQuaternion::from_euler_angles(std::f64::consts::FRAC_PI_2, 0.0, 0.0),
+        ShapeKind::Cylinder { .. } => {
+            s.pose * nalgebra::UnitQuaternion::from_euler_angles(std::f64::consts::FRAC_PI_2, 0.0, 0.0)
+        }
         _ => s.pose,
     }
 }

@@ -35,7 +35,13 @@ fn record(b: &BatchEnv) -> Vec<u64> {
     for i in 0..b.num_envs() {
         out.extend(bits(b.obs(i).unwrap()));
         let s = b.last_step(i).unwrap();
-        out.extend([s.reward.to_bits(), s.terminated as u64, s.truncated as u64, s.success as u64, b.was_reset(i).unwrap() as u64]);
+        out.extend([
+            s.reward.to_bits(),
+            s.terminated as u64,
+            s.truncated as u64,
+            s.success as u64,
+            b.was_reset(i).unwrap() as u64,
+        ]);
     }
     out
 }
@@ -68,7 +74,13 @@ fn batch_equals_single_environments_bitwise_for_any_thread_count_with_next_step_
             } else {
                 let r = singles[i].step(&a[i * 10..i * 10 + 10]).unwrap();
                 rec.extend(bits(singles[i].observe()));
-                rec.extend([r.reward.to_bits(), r.terminated as u64, r.truncated as u64, r.evaluation.success as u64, 0]);
+                rec.extend([
+                    r.reward.to_bits(),
+                    r.terminated as u64,
+                    r.truncated as u64,
+                    r.evaluation.success as u64,
+                    0,
+                ]);
                 ended[i] = r.terminated || r.truncated;
             }
         }

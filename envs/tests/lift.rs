@@ -157,7 +157,11 @@ fn adversarial_actions_never_explode_or_push_the_cube_into_the_table() {
                     for sz in [-1.0, 1.0] {
                         let p = pose * nalgebra::Point3::new(sx * h.x, sy * h.y, sz * h.z);
                         // Only a cube over the table counts (it can be pushed off onto the floor).
-                        if p.x.abs() < 0.4 && p.y.abs() < 0.4 && pose.translation.x.abs() < 0.37 && pose.translation.y.abs() < 0.37 {
+                        if p.x.abs() < 0.4
+                            && p.y.abs() < 0.4
+                            && pose.translation.x.abs() < 0.37
+                            && pose.translation.y.abs() < 0.37
+                        {
                             lowest = lowest.min(p.z);
                         }
                     }
@@ -186,8 +190,16 @@ fn joint_limits_are_never_violated() {
         env.step(&a).unwrap();
         let scene = env.scene();
         let measured = scene.joint_positions();
-        for (q, j) in scene.controller().desired_joints().iter().chain(&measured).zip(scene.robot().joints.iter().cycle()) {
-            assert!(*q >= j.lower - 1e-9 && *q <= j.upper + 1e-9, "{} = {q} outside [{}, {}]", j.name, j.lower, j.upper);
+        for (q, j) in
+            scene.controller().desired_joints().iter().chain(&measured).zip(scene.robot().joints.iter().cycle())
+        {
+            assert!(
+                *q >= j.lower - 1e-9 && *q <= j.upper + 1e-9,
+                "{} = {q} outside [{}, {}]",
+                j.name,
+                j.lower,
+                j.upper
+            );
         }
     }
 }

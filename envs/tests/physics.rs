@@ -148,19 +148,45 @@ fn adversarial_targets_never_push_anything_through_anything() {
                 let mut obstacles = objects.clone();
                 obstacles.push(table);
                 let robot_depth = deepest_penetration(&scene.world, scene.rig.colliders(), &obstacles);
-                assert!(object_depth <= MAX_OBJECT_DEPTH, "{task} ep {episode} step {t}: object {:.1} mm into the table", object_depth * 1e3);
-                assert!(robot_depth <= MAX_ROBOT_DEPTH, "{task} ep {episode} step {t}: robot {:.1} mm into table/object", robot_depth * 1e3);
+                assert!(
+                    object_depth <= MAX_OBJECT_DEPTH,
+                    "{task} ep {episode} step {t}: object {:.1} mm into the table",
+                    object_depth * 1e3
+                );
+                assert!(
+                    robot_depth <= MAX_ROBOT_DEPTH,
+                    "{task} ep {episode} step {t}: robot {:.1} mm into table/object",
+                    robot_depth * 1e3
+                );
                 let q = scene.joint_positions();
                 let qd = scene.joint_velocities();
                 for (k, j) in robot.joints.iter().enumerate() {
-                    assert!(q[k] >= j.lower - LIMIT_TOLERANCE && q[k] <= j.upper + LIMIT_TOLERANCE, "{task} ep {episode} step {t}: {} = {} outside [{}, {}]", j.name, q[k], j.lower, j.upper);
+                    assert!(
+                        q[k] >= j.lower - LIMIT_TOLERANCE && q[k] <= j.upper + LIMIT_TOLERANCE,
+                        "{task} ep {episode} step {t}: {} = {} outside [{}, {}]",
+                        j.name,
+                        q[k],
+                        j.lower,
+                        j.upper
+                    );
                     // The joint's velocity state (clamped after every physics step) ...
-                    assert!(qd[k].abs() <= j.max_velocity * (1.0 + 1e-6), "{task} ep {episode} step {t}: {} at {} rad/s (limit {})", j.name, qd[k], j.max_velocity);
+                    assert!(
+                        qd[k].abs() <= j.max_velocity * (1.0 + 1e-6),
+                        "{task} ep {episode} step {t}: {} at {} rad/s (limit {})",
+                        j.name,
+                        qd[k],
+                        j.max_velocity
+                    );
                     // ... and its average speed over the control step: within a physics step
                     // contacts and the shoulder's motion can fling the 12 N m wrist joints
                     // faster than the state velocity shows.
                     let speed = (q[k] - q_prev[k]).abs() / period;
-                    assert!(speed <= j.max_velocity * MAX_STEP_SPEED_RATIO, "{task} ep {episode} step {t}: {} moved at {speed:.2} rad/s (limit {})", j.name, j.max_velocity);
+                    assert!(
+                        speed <= j.max_velocity * MAX_STEP_SPEED_RATIO,
+                        "{task} ep {episode} step {t}: {} moved at {speed:.2} rad/s (limit {})",
+                        j.name,
+                        j.max_velocity
+                    );
                     worst.2 = worst.2.max(speed / j.max_velocity);
                 }
                 for (f, x) in robot.fingers.iter().zip(scene.finger_positions()) {
@@ -199,7 +225,13 @@ fn reachable_target(env: &Env, rng: &mut EpisodeRng) -> Isometry3<f64> {
         let p = tcp.translation.vector;
         // In front of the robot over the table, pointing down-ish, high enough for the hand.
         let down = (tcp.rotation * Vector3::z()).z < -0.5;
-        if down && p.z > top + 0.12 && p.z < top + 0.45 && p.x.abs() < 0.3 && p.y.abs() < 0.3 && frames[1..].iter().all(|f| f.translation.z > top + 0.15) {
+        if down
+            && p.z > top + 0.12
+            && p.z < top + 0.45
+            && p.x.abs() < 0.3
+            && p.y.abs() < 0.3
+            && frames[1..].iter().all(|f| f.translation.z > top + 0.15)
+        {
             return tcp;
         }
     }
@@ -236,11 +268,17 @@ fn reachable_targets_are_reached() {
             reached += 1;
         } else {
             let scene = env.scene();
-            let seeds = equigym_envs::robot::controller::seed_bank(scene.robot(), &equigym_envs::tasks::tabletop::panda_home());
+            let seeds =
+                equigym_envs::robot::controller::seed_bank(scene.robot(), &equigym_envs::tasks::tabletop::panda_home());
             let seeds: Vec<&[f64]> = seeds.iter().map(|s| s.as_slice()).collect();
             let mut q = scene.joint_positions();
             let fit = scene.robot().solve_ik_restarts(scene.base(), &target, &mut q, &seeds, &Default::default());
-            eprintln!("target {i}: {:.1} mm, {:.2} deg off; IK from here {fit:?}; q {:?} -> {q:?}", dp * 1e3, da.to_degrees(), scene.joint_positions());
+            eprintln!(
+                "target {i}: {:.1} mm, {:.2} deg off; IK from here {fit:?}; q {:?} -> {q:?}",
+                dp * 1e3,
+                da.to_degrees(),
+                scene.joint_positions()
+            );
             eprintln!("   touching pairs {:?}", scene.rig.self_collision_exclusions(&scene.world));
         }
     }
@@ -263,7 +301,10 @@ fn a_yaw_sweep_is_tracked_wherever_a_joint_limited_solution_exists() {
     // Two full turns in 15-degree steps, each held until it settles.
     for k in 1..=48 {
         let yaw = (k as f64 * 15.0).to_radians();
-        let target = Isometry3::from_parts(centre.coords.into(), UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw) * start.rotation);
+        let target = Isometry3::from_parts(
+            centre.coords.into(),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw) * start.rotation,
+        );
         let a = action_for(&target, 0.08);
         for _ in 0..60 {
             env.step(&a).unwrap();
@@ -299,7 +340,10 @@ fn square_resets_never_start_in_collision() {
         let nut_peg = deepest_penetration(&scene.world, objects[0].colliders.iter().copied(), &peg);
         all.clear();
         deepest = deepest.max(robot_depth).max(nut_peg);
-        assert!(robot_depth == 0.0 && nut_peg == 0.0, "seed {seed}: robot {robot_depth} m, nut {nut_peg} m into another body");
+        assert!(
+            robot_depth == 0.0 && nut_peg == 0.0,
+            "seed {seed}: robot {robot_depth} m, nut {nut_peg} m into another body"
+        );
     }
     eprintln!("deepest initial overlap {deepest}");
 }

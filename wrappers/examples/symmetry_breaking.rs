@@ -25,7 +25,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         report.expert_episodes,
         start.elapsed().as_secs_f64()
     );
-    println!("  g  angle  obs err (mean/max)  object err mm (mean/max)  hand mm  reward err  succ mism  unreach  replay");
+    println!(
+        "  g  angle  obs err (mean/max)  object err mm (mean/max)  hand mm  reward err  succ mism  unreach  replay"
+    );
     for (inv, rep) in report.invariance.iter().zip(&report.replay) {
         println!(
             "  {}  {:5.1}  {:8.5} / {:7.5}  {:8.3} / {:8.3}  {:7.3}  {:9.5}  {:8.3}  {:7.3}  {}/{}",

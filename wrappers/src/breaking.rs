@@ -149,20 +149,10 @@ fn outcome(env: &mut Env, reward: f64, success: bool) -> Outcome {
         .task()
         .objects()
         .iter()
-        .map(|o| {
-            from_pose(env.scene().world.bodies[o.body].position())
-                .translation
-                .vector
-        })
+        .map(|o| from_pose(env.scene().world.bodies[o.body].position()).translation.vector)
         .collect();
     let hand = env.scene().tcp_pose().translation.vector;
-    Outcome {
-        obs,
-        objects,
-        hand,
-        reward,
-        success,
-    }
+    Outcome { obs, objects, hand, reward, success }
 }
 
 fn rotate_point(g: &PlanarRotation, p: &Vector3<f64>) -> Vector3<f64> {
@@ -172,9 +162,7 @@ fn rotate_point(g: &PlanarRotation, p: &Vector3<f64>) -> Vector3<f64> {
 /// Run both probes.
 pub fn measure(config: &BreakingConfig) -> Result<BreakingReport> {
     if config.episodes == 0 || config.probe_steps == 0 {
-        return Err(
-            EnvError::InvalidConfig("episodes and probe_steps must be positive".into()).into(),
-        );
+        return Err(EnvError::InvalidConfig("episodes and probe_steps must be positive".into()).into());
     }
     let group = Group::cyclic(config.group_order)?;
     let mut env_config = EnvConfig::new(&config.task);
@@ -193,12 +181,7 @@ pub fn measure(config: &BreakingConfig) -> Result<BreakingReport> {
         let mut expert = make_expert(&config.task, ExpertOptions::default())?;
         env.reset(seed)?;
         expert.reset(&env, seed);
-        let mut demo = Demo {
-            seed,
-            actions: Vec::new(),
-            states: Vec::new(),
-            success: false,
-        };
+        let mut demo = Demo { seed, actions: Vec::new(), states: Vec::new(), success: false };
         for _ in 0..env.horizon() {
             demo.states.push(env.get_state()?);
             let action = expert.act(&env);
@@ -243,13 +226,7 @@ pub fn measure(config: &BreakingConfig) -> Result<BreakingReport> {
                 let rotated = outcome(&mut env, last.reward, last.evaluation.success);
                 let mut expected = reference.obs.clone();
                 sym.act_observation(g, &mut expected)?;
-                let obs_err = rotated
-                    .obs
-                    .iter()
-                    .zip(&expected)
-                    .map(|(a, b)| (a - b).powi(2))
-                    .sum::<f64>()
-                    .sqrt();
+                let obs_err = rotated.obs.iter().zip(&expected).map(|(a, b)| (a - b).powi(2)).sum::<f64>().sqrt();
                 let obj_err = rotated
                     .objects
                     .iter()
@@ -296,12 +273,7 @@ pub fn measure(config: &BreakingConfig) -> Result<BreakingReport> {
     let mut replay: Vec<ReplayRow> = elements
         .iter()
         .enumerate()
-        .map(|(e, g)| ReplayRow {
-            element: e,
-            angle_deg: g.angle().to_degrees(),
-            demos: 0,
-            successes: 0,
-        })
+        .map(|(e, g)| ReplayRow { element: e, angle_deg: g.angle().to_degrees(), demos: 0, successes: 0 })
         .collect();
     for demo in demos.iter().filter(|d| d.success) {
         for (e, g) in elements.iter().enumerate() {

@@ -41,7 +41,10 @@ impl std::str::FromStr for Precision {
         match s {
             "f32" | "float32" => Ok(Precision::F32),
             "f64" | "float64" => Ok(Precision::F64),
-            other => Err(equigym_envs::EnvError::InvalidConfig(format!("precision must be 'f32' or 'f64', got '{other}'")).into()),
+            other => {
+                Err(equigym_envs::EnvError::InvalidConfig(format!("precision must be 'f32' or 'f64', got '{other}'"))
+                    .into())
+            }
         }
     }
 }
@@ -84,57 +87,28 @@ pub struct DiffusionPolicy {
 }
 
 fn bad(path: &str, reason: impl Into<String>) -> Error {
-    Error::Policy {
-        path: path.into(),
-        reason: reason.into(),
-    }
+    Error::Policy { path: path.into(), reason: reason.into() }
 }
 
 fn tensor(st: &SafeTensors, path: &str, name: &str, shape: &[usize]) -> Result<Vec<f64>> {
-    let t = st
-        .tensor(name)
-        .map_err(|_| bad(path, format!("missing tensor '{name}'")))?;
+    let t = st.tensor(name).map_err(|_| bad(path, format!("missing tensor '{name}'")))?;
     if t.shape() != shape {
-        return Err(bad(
-            path,
-            format!(
-                "tensor '{name}' has shape {:?}, expected {shape:?}",
-                t.shape()
-            ),
-        ));
+        return Err(bad(path, format!("tensor '{name}' has shape {:?}, expected {shape:?}", t.shape())));
     }
     let data = t.data();
     let values: Vec<f64> = match t.dtype() {
-        Dtype::F32 => data
-            .chunks_exact(4)
-            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64)
-            .collect(),
-        Dtype::F64 => data
-            .chunks_exact(8)
-            .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
-            .collect(),
-        other => {
-            return Err(bad(
-                path,
-                format!("tensor '{name}' has dtype {other:?}, expected F32 or F64"),
-            ))
-        }
+        Dtype::F32 => data.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64).collect(),
+        Dtype::F64 => data.chunks_exact(8).map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes"))).collect(),
+        other => return Err(bad(path, format!("tensor '{name}' has dtype {other:?}, expected F32 or F64"))),
     };
     if let Some(v) = values.iter().find(|v| !v.is_finite()) {
-        return Err(bad(
-            path,
-            format!("tensor '{name}' holds a non-finite value ({v})"),
-        ));
+        return Err(bad(path, format!("tensor '{name}' holds a non-finite value ({v})")));
     }
     Ok(values)
 }
 
 fn shape_of(st: &SafeTensors, path: &str, name: &str) -> Result<Vec<usize>> {
-    Ok(st
-        .tensor(name)
-        .map_err(|_| bad(path, format!("missing tensor '{name}'")))?
-        .shape()
-        .to_vec())
+    Ok(st.tensor(name).map_err(|_| bad(path, format!("missing tensor '{name}'")))?.shape().to_vec())
 }
 
 impl DiffusionPolicy {
@@ -156,25 +130,17 @@ impl DiffusionPolicy {
 
     /// Load from the bytes of a policy file (`origin` names it in errors).
     pub fn from_bytes(bytes: &[u8], origin: &str) -> Result<Self> {
-        let (_, meta) = SafeTensors::read_metadata(bytes)
-            .map_err(|e| bad(origin, format!("not a safetensors file ({e})")))?;
+        let (_, meta) =
+            SafeTensors::read_metadata(bytes).map_err(|e| bad(origin, format!("not a safetensors file ({e})")))?;
         let metadata = meta.metadata().clone().unwrap_or_default();
-        let st = SafeTensors::deserialize(bytes)
-            .map_err(|e| bad(origin, format!("corrupt or truncated ({e})")))?;
-        let get = |k: &str| {
-            metadata
-                .get(k)
-                .cloned()
-                .ok_or_else(|| bad(origin, format!("metadata '{k}' is missing")))
-        };
+        let st = SafeTensors::deserialize(bytes).map_err(|e| bad(origin, format!("corrupt or truncated ({e})")))?;
+        let get = |k: &str| metadata.get(k).cloned().ok_or_else(|| bad(origin, format!("metadata '{k}' is missing")));
         let format = get("format")?;
         if format != FORMAT {
             return Err(bad(origin, format!("format '{format}' is not '{FORMAT}'")));
         }
         let parse = |k: &str| -> Result<usize> {
-            get(k)?
-                .parse::<usize>()
-                .map_err(|_| bad(origin, format!("metadata '{k}' is not a count")))
+            get(k)?.parse::<usize>().map_err(|_| bad(origin, format!("metadata '{k}' is not a count")))
         };
         let task = get("task")?;
         let chunk_len = parse("chunk_len")?;
@@ -191,28 +157,21 @@ impl DiffusionPolicy {
         if num_layers > MAX_LAYERS || chunk_len > MAX_CHUNK_LEN {
             return Err(bad(
                 origin,
-                format!("{num_layers} layers or a chunk of {chunk_len} exceed the limits ({MAX_LAYERS}, {MAX_CHUNK_LEN})"),
+                format!(
+                    "{num_layers} layers or a chunk of {chunk_len} exceed the limits ({MAX_LAYERS}, {MAX_CHUNK_LEN})"
+                ),
             ));
         }
         let mut layers = Vec::with_capacity(num_layers);
         for i in 0..num_layers {
             let shape = shape_of(&st, origin, &format!("layer{i}.weight"))?;
             if shape.len() != 2 {
-                return Err(bad(
-                    origin,
-                    format!("layer{i}.weight must be 2-d, got {shape:?}"),
-                ));
+                return Err(bad(origin, format!("layer{i}.weight must be 2-d, got {shape:?}")));
             }
             let (n_out, n_in) = (shape[0], shape[1]);
             if let Some(prev) = layers.last().map(|l: &Dense| l.n_out) {
                 if prev != n_in {
-                    return Err(bad(
-                        origin,
-                        format!(
-                            "layer{i} takes {n_in} inputs but layer{} gives {prev}",
-                            i - 1
-                        ),
-                    ));
+                    return Err(bad(origin, format!("layer{i} takes {n_in} inputs but layer{} gives {prev}", i - 1)));
                 }
             }
             let weight = tensor(&st, origin, &format!("layer{i}.weight"), &[n_out, n_in])?;
@@ -230,20 +189,12 @@ impl DiffusionPolicy {
         }
         let emb_shape = shape_of(&st, origin, "time_embedding")?;
         if emb_shape.len() != 2 || emb_shape[0] != steps {
-            return Err(bad(
-                origin,
-                format!("time_embedding must be ({steps}, dim), got {emb_shape:?}"),
-            ));
+            return Err(bad(origin, format!("time_embedding must be ({steps}, dim), got {emb_shape:?}")));
         }
         let time_dim = emb_shape[1];
         let action_dim = chunk_len * equigym_envs::ACTION_DIM;
-        let obs_dim = shape_of(&st, origin, "obs_offset")?
-            .first()
-            .copied()
-            .unwrap_or(0);
-        if layers[0].n_in != obs_dim + action_dim + time_dim
-            || layers[num_layers - 1].n_out != action_dim
-        {
+        let obs_dim = shape_of(&st, origin, "obs_offset")?.first().copied().unwrap_or(0);
+        if layers[0].n_in != obs_dim + action_dim + time_dim || layers[num_layers - 1].n_out != action_dim {
             return Err(bad(
                 origin,
                 format!(
@@ -269,12 +220,7 @@ impl DiffusionPolicy {
             metadata,
             precision: Precision::default(),
         };
-        if policy
-            .obs_scale
-            .iter()
-            .chain(&policy.action_scale)
-            .any(|s| *s <= 0.0)
-        {
+        if policy.obs_scale.iter().chain(&policy.action_scale).any(|s| *s <= 0.0) {
             return Err(bad(origin, "normalisation scales must be positive"));
         }
         if policy.alphas_cumprod.iter().any(|a| *a <= 0.0 || *a > 1.0) {
@@ -287,11 +233,7 @@ impl DiffusionPolicy {
     pub fn check_layout(&self, task: &str, layout: &Layout) -> Result<()> {
         if task != self.task || layout.dim() != self.obs_dim() {
             return Err(Error::Policy {
-                path: self
-                    .metadata
-                    .get("path")
-                    .cloned()
-                    .unwrap_or_else(|| "policy".into()),
+                path: self.metadata.get("path").cloned().unwrap_or_else(|| "policy".into()),
                 reason: format!(
                     "trained for task '{}' ({}-d observations), used with '{task}' ({}-d)",
                     self.task,
@@ -327,11 +269,17 @@ impl DiffusionPolicy {
     }
 
     /// [`DiffusionPolicy::sample`] with the network in the given precision.
-    pub fn sample_with(&self, precision: Precision, obs: &[f64], latent: &[f64], steps: usize, out: &mut [f64]) -> Result<()> {
+    pub fn sample_with(
+        &self,
+        precision: Precision,
+        obs: &[f64],
+        latent: &[f64],
+        steps: usize,
+        out: &mut [f64],
+    ) -> Result<()> {
         let (od, ad) = (self.obs_dim(), self.action_dim());
         let b = latent.len() / ad.max(1);
-        let check =
-            |what: &str, v: &[f64], want: usize| equigym_envs::error::check_finite(what, v, want);
+        let check = |what: &str, v: &[f64], want: usize| equigym_envs::error::check_finite(what, v, want);
         check("latent", latent, b * ad)?;
         check("observation batch", obs, b * od)?;
         if out.len() != b * ad {

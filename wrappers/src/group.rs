@@ -18,25 +18,15 @@ pub struct PlanarRotation {
 }
 
 impl PlanarRotation {
-    pub const IDENTITY: PlanarRotation = PlanarRotation {
-        angle: 0.0,
-        cos: 1.0,
-        sin: 0.0,
-    };
+    pub const IDENTITY: PlanarRotation = PlanarRotation { angle: 0.0, cos: 1.0, sin: 0.0 };
 
     /// The rotation by `angle` radians (counter-clockwise seen from above), any real angle.
     pub fn new(angle: f64) -> Result<Self> {
         if !angle.is_finite() {
-            return Err(Error::InvalidGroup(format!(
-                "rotation angle must be finite, got {angle}"
-            )));
+            return Err(Error::InvalidGroup(format!("rotation angle must be finite, got {angle}")));
         }
         let angle = angle.rem_euclid(std::f64::consts::TAU);
-        Ok(Self {
-            angle,
-            cos: angle.cos(),
-            sin: angle.sin(),
-        })
+        Ok(Self { angle, cos: angle.cos(), sin: angle.sin() })
     }
 
     /// The k-th of n equal turns, with exact values at multiples of a quarter turn.
@@ -45,18 +35,10 @@ impl PlanarRotation {
         if (4 * k) % n == 0 {
             let quarter = 4 * k / n;
             let (cos, sin) = [(1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0)][quarter];
-            return Self {
-                angle: std::f64::consts::FRAC_PI_2 * quarter as f64,
-                cos,
-                sin,
-            };
+            return Self { angle: std::f64::consts::FRAC_PI_2 * quarter as f64, cos, sin };
         }
         let angle = std::f64::consts::TAU * k as f64 / n as f64;
-        Self {
-            angle,
-            cos: angle.cos(),
-            sin: angle.sin(),
-        }
+        Self { angle, cos: angle.cos(), sin: angle.sin() }
     }
 
     /// Angle in [0, 2 pi).
@@ -74,19 +56,11 @@ impl PlanarRotation {
     pub fn compose(&self, other: &PlanarRotation) -> PlanarRotation {
         let cos = self.cos * other.cos - self.sin * other.sin;
         let sin = self.sin * other.cos + self.cos * other.sin;
-        PlanarRotation {
-            angle: (self.angle + other.angle).rem_euclid(std::f64::consts::TAU),
-            cos,
-            sin,
-        }
+        PlanarRotation { angle: (self.angle + other.angle).rem_euclid(std::f64::consts::TAU), cos, sin }
     }
 
     pub fn inverse(&self) -> PlanarRotation {
-        PlanarRotation {
-            angle: (-self.angle).rem_euclid(std::f64::consts::TAU),
-            cos: self.cos,
-            sin: -self.sin,
-        }
+        PlanarRotation { angle: (-self.angle).rem_euclid(std::f64::consts::TAU), cos: self.cos, sin: -self.sin }
     }
 
     /// The irreducible representation of frequency `frequency` (rho_0 is 1x1, others 2x2),
@@ -112,9 +86,7 @@ impl PlanarRotation {
     pub fn isometry(&self, centre: [f64; 2]) -> Isometry3<f64> {
         let c = Vector3::new(centre[0], centre[1], 0.0);
         let q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), self.angle);
-        Translation3::from(c)
-            * Isometry3::from_parts(Translation3::identity(), q)
-            * Translation3::from(-c)
+        Translation3::from(c) * Isometry3::from_parts(Translation3::identity(), q) * Translation3::from(-c)
     }
 }
 
@@ -131,9 +103,7 @@ impl Group {
     /// C_N; N >= 1.
     pub fn cyclic(order: usize) -> Result<Self> {
         if order == 0 {
-            return Err(Error::InvalidGroup(
-                "the cyclic group's order must be at least 1".into(),
-            ));
+            return Err(Error::InvalidGroup("the cyclic group's order must be at least 1".into()));
         }
         Ok(Group::Cyclic { order })
     }
@@ -151,20 +121,14 @@ impl Group {
     pub fn element(&self, k: usize) -> Result<PlanarRotation> {
         match self {
             Group::Cyclic { order } if k < *order => Ok(PlanarRotation::fraction(k, *order)),
-            Group::Cyclic { order } => Err(Error::InvalidGroup(format!(
-                "C{order} has elements 0..{order}, got {k}"
-            ))),
-            Group::SO2 => Err(Error::InvalidGroup(
-                "SO(2) elements are given by angle, not by index".into(),
-            )),
+            Group::Cyclic { order } => Err(Error::InvalidGroup(format!("C{order} has elements 0..{order}, got {k}"))),
+            Group::SO2 => Err(Error::InvalidGroup("SO(2) elements are given by angle, not by index".into())),
         }
     }
 
     /// All elements of C_N in index order (identity first); SO(2) gives an error.
     pub fn elements(&self) -> Result<Vec<PlanarRotation>> {
-        let n = self
-            .order()
-            .ok_or_else(|| Error::InvalidGroup("SO(2) has no finite list of elements".into()))?;
+        let n = self.order().ok_or_else(|| Error::InvalidGroup("SO(2) has no finite list of elements".into()))?;
         (0..n).map(|k| self.element(k)).collect()
     }
 
@@ -187,9 +151,7 @@ impl Group {
     /// The regular representation of element k of C_N: the permutation matrix that shifts a
     /// vector of N values (one per element) cyclically by k, row-major.
     pub fn regular_representation(&self, k: usize) -> Result<Vec<f64>> {
-        let n = self.order().ok_or_else(|| {
-            Error::InvalidGroup("SO(2) has no regular representation here".into())
-        })?;
+        let n = self.order().ok_or_else(|| Error::InvalidGroup("SO(2) has no regular representation here".into()))?;
         self.element(k)?;
         let mut m = vec![0.0; n * n];
         for j in 0..n {
@@ -217,9 +179,7 @@ impl std::str::FromStr for Group {
         }
         match t.strip_prefix('c').and_then(|n| n.parse::<usize>().ok()) {
             Some(n) => Group::cyclic(n),
-            None => Err(Error::InvalidGroup(format!(
-                "unknown group '{s}' (use 'C<N>' or 'SO2')"
-            ))),
+            None => Err(Error::InvalidGroup(format!("unknown group '{s}' (use 'C<N>' or 'SO2')"))),
         }
     }
 }

@@ -47,12 +47,7 @@ pub struct LatentEnv {
 
 impl LatentEnv {
     /// Wrap `env` with `policy` (trained for the same task), latent bound and DDIM steps.
-    pub fn new(
-        env: Env,
-        policy: Arc<DiffusionPolicy>,
-        bound: f64,
-        ddim_steps: usize,
-    ) -> Result<Self> {
+    pub fn new(env: Env, policy: Arc<DiffusionPolicy>, bound: f64, ddim_steps: usize) -> Result<Self> {
         policy.check_layout(env.task().id(), env.observation_layout())?;
         if env.config().reward != equigym_envs::RewardKind::Sparse {
             return Err(equigym_envs::EnvError::InvalidConfig(
@@ -62,10 +57,9 @@ impl LatentEnv {
             .into());
         }
         if !(bound.is_finite() && bound > 0.0) {
-            return Err(equigym_envs::EnvError::InvalidConfig(format!(
-                "latent bound must be positive, got {bound}"
-            ))
-            .into());
+            return Err(
+                equigym_envs::EnvError::InvalidConfig(format!("latent bound must be positive, got {bound}")).into()
+            );
         }
         if ddim_steps == 0 || ddim_steps > policy.num_train_timesteps() {
             return Err(equigym_envs::EnvError::InvalidConfig(format!(
@@ -75,14 +69,7 @@ impl LatentEnv {
             .into());
         }
         let chunk = vec![0.0; policy.action_dim()];
-        Ok(Self {
-            env,
-            policy,
-            bound,
-            ddim_steps,
-            chunk,
-            last_executed: 0,
-        })
+        Ok(Self { env, policy, bound, ddim_steps, chunk, last_executed: 0 })
     }
 
     pub fn env(&self) -> &Env {
@@ -124,10 +111,7 @@ impl LatentEnv {
     /// The chunk the policy makes of `latent` at the current observation (no stepping).
     pub fn decode(&mut self, latent: &[f64]) -> Result<Vec<f64>> {
         check_finite("latent action", latent, self.latent_dim())?;
-        let w: Vec<f64> = latent
-            .iter()
-            .map(|v| v.clamp(-self.bound, self.bound))
-            .collect();
+        let w: Vec<f64> = latent.iter().map(|v| v.clamp(-self.bound, self.bound)).collect();
         let obs = self.env.observe().to_vec();
         let mut chunk = vec![0.0; self.latent_dim()];
         self.policy.sample(&obs, &w, self.ddim_steps, &mut chunk)?;
@@ -189,10 +173,7 @@ pub fn step_batch(envs: &mut [LatentEnv], latents: &[f64]) -> Result<Vec<LatentS
     let obs: Vec<f64> = envs.iter_mut().flat_map(|e| e.env.observe().to_vec()).collect();
     let mut chunks = vec![0.0; latents.len()];
     decoder.decode_rows(&obs, latents, &mut chunks)?;
-    envs.iter_mut()
-        .zip(chunks.chunks_exact(ad))
-        .map(|(e, c)| e.execute(c.to_vec()))
-        .collect()
+    envs.iter_mut().zip(chunks.chunks_exact(ad)).map(|(e, c)| e.execute(c.to_vec())).collect()
 }
 
 // -- the latent vector environment ------------------------------------------------------------
@@ -230,9 +211,9 @@ pub struct LatentDecoder {
 impl LatentDecoder {
     /// The decoder of environments that share one policy, bound and DDIM setting.
     pub fn shared_by(envs: &[LatentEnv]) -> Result<Self> {
-        let first = envs.first().ok_or_else(|| {
-            equigym_envs::EnvError::InvalidConfig("a batch needs at least one environment".into())
-        })?;
+        let first = envs
+            .first()
+            .ok_or_else(|| equigym_envs::EnvError::InvalidConfig("a batch needs at least one environment".into()))?;
         if envs.iter().any(|e| {
             !Arc::ptr_eq(&e.policy, &first.policy) || e.ddim_steps != first.ddim_steps || e.bound != first.bound
         }) {
@@ -254,7 +235,13 @@ impl ActionDecoder for LatentDecoder {
     fn input_dim(&self) -> usize {
         self.policy.action_dim()
     }
-    fn decode(&mut self, pool: &rayon::ThreadPool, obs: &[f64], input: &[f64], output: &mut [f64]) -> equigym_envs::Result<()> {
+    fn decode(
+        &mut self,
+        pool: &rayon::ThreadPool,
+        obs: &[f64],
+        input: &[f64],
+        output: &mut [f64],
+    ) -> equigym_envs::Result<()> {
         let (od, ad) = (self.policy.obs_dim(), self.policy.action_dim());
         let rows = input.len() / ad.max(1);
         // Whole rows per thread, in blocks of four (the kernel's row block).

@@ -37,36 +37,19 @@ impl Representation {
             let s = f.start;
             match f.kind {
                 FieldKind::Position => {
-                    blocks.push(Block::Rotating {
-                        x: s,
-                        y: s + 1,
-                        frequency: 1,
-                    });
+                    blocks.push(Block::Rotating { x: s, y: s + 1, frequency: 1 });
                     blocks.push(Block::Trivial { index: s + 2 });
                 }
-                FieldKind::PlanarVector => blocks.push(Block::Rotating {
-                    x: s,
-                    y: s + 1,
-                    frequency: 1,
-                }),
+                FieldKind::PlanarVector => blocks.push(Block::Rotating { x: s, y: s + 1, frequency: 1 }),
                 FieldKind::Rotation6d => {
                     for c in 0..3 {
-                        blocks.push(Block::Rotating {
-                            x: s + c,
-                            y: s + 3 + c,
-                            frequency: 1,
-                        });
+                        blocks.push(Block::Rotating { x: s + c, y: s + 3 + c, frequency: 1 });
                     }
                 }
-                FieldKind::Invariant => {
-                    blocks.extend((s..s + f.len).map(|index| Block::Trivial { index }))
-                }
+                FieldKind::Invariant => blocks.extend((s..s + f.len).map(|index| Block::Trivial { index })),
             }
         }
-        Self {
-            dim: layout.dim(),
-            blocks,
-        }
+        Self { dim: layout.dim(), blocks }
     }
 
     pub fn dim(&self) -> usize {
@@ -79,11 +62,7 @@ impl Representation {
 
     /// (number of rho0 copies, number of rho1 copies).
     pub fn multiplicities(&self) -> (usize, usize) {
-        let rot = self
-            .blocks
-            .iter()
-            .filter(|b| matches!(b, Block::Rotating { .. }))
-            .count();
+        let rot = self.blocks.iter().filter(|b| matches!(b, Block::Rotating { .. })).count();
         (self.blocks.len() - rot, rot)
     }
 
@@ -106,11 +85,7 @@ impl Representation {
     /// Apply a different element to each row of a row-major batch.
     pub fn act_each(&self, elements: &[PlanarRotation], data: &mut [f64]) -> Result<()> {
         self.check_batch(data)?;
-        let rows = if self.dim == 0 {
-            0
-        } else {
-            data.len() / self.dim
-        };
+        let rows = if self.dim == 0 { 0 } else { data.len() / self.dim };
         if elements.len() != rows {
             return Err(EnvError::WrongLength {
                 what: "group elements (one per row)".into(),
@@ -154,32 +129,19 @@ impl Representation {
             .into());
         }
         if let Some((index, value)) = data.iter().enumerate().find(|(_, v)| !v.is_finite()) {
-            return Err(EnvError::NonFinite {
-                what: "batch".into(),
-                index,
-                value: *value,
-            }
-            .into());
+            return Err(EnvError::NonFinite { what: "batch".into(), index, value: *value }.into());
         }
         Ok(())
     }
 
     fn apply(&self, g: &PlanarRotation, x: &mut [f64]) {
         for b in &self.blocks {
-            if let Block::Rotating {
-                x: i,
-                y: j,
-                frequency,
-            } = *b
-            {
+            if let Block::Rotating { x: i, y: j, frequency } = *b {
                 let (a, c) = if frequency == 1 {
                     g.rotate_xy(x[i], x[j])
                 } else {
                     let r = g.irrep(frequency);
-                    (
-                        r[0][0] * x[i] + r[0][1] * x[j],
-                        r[1][0] * x[i] + r[1][1] * x[j],
-                    )
+                    (r[0][0] * x[i] + r[0][1] * x[j], r[1][0] * x[i] + r[1][1] * x[j])
                 };
                 x[i] = a;
                 x[j] = c;

@@ -45,25 +45,12 @@ impl TaskSymmetry {
 
     /// The symmetry of an environment's task.
     pub fn for_env(env: &Env, group: Group, chunk_len: usize) -> Result<Self> {
-        Self::from_layouts(
-            env.task().id(),
-            env.observation_layout().clone(),
-            group,
-            chunk_len,
-        )
+        Self::from_layouts(env.task().id(), env.observation_layout().clone(), group, chunk_len)
     }
 
-    fn from_layouts(
-        task: &str,
-        observation_layout: Layout,
-        group: Group,
-        chunk_len: usize,
-    ) -> Result<Self> {
+    fn from_layouts(task: &str, observation_layout: Layout, group: Group, chunk_len: usize) -> Result<Self> {
         if chunk_len == 0 {
-            return Err(EnvError::InvalidConfig(
-                "the action chunk needs at least one action".into(),
-            )
-            .into());
+            return Err(EnvError::InvalidConfig("the action chunk needs at least one action".into()).into());
         }
         let action_layout = Layout::action();
         let chunk_layout = action_layout.repeat(chunk_len);

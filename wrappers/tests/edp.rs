@@ -3,8 +3,8 @@
 use std::collections::HashMap;
 
 use equigym_envs::{Env, EnvConfig};
-use equigym_wrappers::latent::{step_batch, LatentEnv};
 use equigym_wrappers::edp::Precision;
+use equigym_wrappers::latent::{step_batch, LatentEnv};
 use equigym_wrappers::{DiffusionPolicy, Error};
 use safetensors::tensor::TensorView;
 use safetensors::Dtype;
@@ -29,7 +29,10 @@ fn random_policy() -> Vec<u8> {
     let (inp, hidden) = (OBS + CHUNK + EMB, 37);
     let w = |n: usize, salt: f64| (0..n).map(|i| 0.3 * ((i as f64) * 0.7548 + salt).sin()).collect::<Vec<f64>>();
     policy_bytes(
-        vec![(w(hidden * inp, 0.1), w(hidden, 0.2), hidden, inp), (w(CHUNK * hidden, 0.3), w(CHUNK, 0.4), CHUNK, hidden)],
+        vec![
+            (w(hidden * inp, 0.1), w(hidden, 0.2), hidden, inp),
+            (w(CHUNK * hidden, 0.3), w(CHUNK, 0.4), CHUNK, hidden),
+        ],
         "equigym-edp-1",
     )
 }
@@ -155,7 +158,8 @@ fn latent_vector_env_equals_single_envs_for_any_thread_count() {
     let make = || LatentEnv::new(Env::new(config()).unwrap(), policy.clone(), 1.5, 5).unwrap();
     let n = 7; // not a multiple of the kernel's four-row block
     let seeds: Vec<u64> = (0..n as u64).map(|k| 40 + k).collect();
-    let latents = |t: usize| -> Vec<f64> { (0..n * CHUNK).map(|i| 2.0 * ((i * 31 + t * 7) as f64 * 0.113).sin()).collect() };
+    let latents =
+        |t: usize| -> Vec<f64> { (0..n * CHUNK).map(|i| 2.0 * ((i * 31 + t * 7) as f64 * 0.113).sin()).collect() };
     // Reference: seven single environments; one episode of three latent steps each.
     let mut singles: Vec<LatentEnv> = (0..n).map(|_| make()).collect();
     let mut want = Vec::new();
@@ -181,7 +185,11 @@ fn latent_vector_env_equals_single_envs_for_any_thread_count() {
             for (k, (w, obs)) in want_t.iter().enumerate() {
                 let got = batch.last_step(k).unwrap();
                 let want = (w.reward, w.terminated, w.truncated, w.success);
-                assert_eq!((got.reward, got.terminated, got.truncated, got.success), want, "threads {threads}, step {t}, env {k}");
+                assert_eq!(
+                    (got.reward, got.terminated, got.truncated, got.success),
+                    want,
+                    "threads {threads}, step {t}, env {k}"
+                );
                 assert_eq!(batch.obs(k).unwrap(), &obs[..], "threads {threads}, step {t}, env {k}");
             }
         }

@@ -123,7 +123,8 @@ fn with_metadata(key: &str, value: &str) -> Vec<u8> {
 /// `chunk_len * ACTION_DIM`; both are now refused as policy errors.
 #[test]
 fn regression_huge_counts_in_metadata_are_refused() {
-    for (key, value) in [("num_layers", "18446744073709551615"), ("chunk_len", "18446744073709551615"), ("num_layers", "5000")]
+    for (key, value) in
+        [("num_layers", "18446744073709551615"), ("chunk_len", "18446744073709551615"), ("num_layers", "5000")]
     {
         let bytes = with_metadata(key, value);
         assert!(matches!(DiffusionPolicy::from_bytes(&bytes, "t"), Err(Error::Policy { .. })), "{key} = {value}");

@@ -21,10 +21,7 @@ fn matmul(a: &[f64], b: &[f64], d: usize) -> Vec<f64> {
 }
 
 fn max_diff(a: &[f64], b: &[f64]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max)
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max)
 }
 
 #[test]
@@ -37,20 +34,14 @@ fn cyclic_group_laws() {
         for a in 0..n {
             // Closure and the index law: g^a g^b = g^(a+b mod n).
             for b in 0..n {
-                assert!(
-                    close(&e[a].compose(&e[b]), &e[(a + b) % n]),
-                    "C{n}: {a} + {b}"
-                );
+                assert!(close(&e[a].compose(&e[b]), &e[(a + b) % n]), "C{n}: {a} + {b}");
                 for c in 0..n {
                     let left = e[a].compose(&e[b]).compose(&e[c]);
                     let right = e[a].compose(&e[b].compose(&e[c]));
                     assert!(close(&left, &right));
                 }
             }
-            assert!(close(
-                &e[a].compose(&e[a].inverse()),
-                &PlanarRotation::IDENTITY
-            ));
+            assert!(close(&e[a].compose(&e[a].inverse()), &PlanarRotation::IDENTITY));
             assert!(g.contains(&e[a]));
         }
         // The generator has order n.
@@ -72,15 +63,9 @@ fn cyclic_group_laws() {
 #[test]
 fn group_errors_are_typed() {
     assert!(matches!(Group::cyclic(0), Err(Error::InvalidGroup(_))));
-    assert!(matches!(
-        Group::cyclic(8).unwrap().element(8),
-        Err(Error::InvalidGroup(_))
-    ));
+    assert!(matches!(Group::cyclic(8).unwrap().element(8), Err(Error::InvalidGroup(_))));
     assert!(matches!(Group::SO2.elements(), Err(Error::InvalidGroup(_))));
-    assert!(matches!(
-        PlanarRotation::new(f64::NAN),
-        Err(Error::InvalidGroup(_))
-    ));
+    assert!(matches!(PlanarRotation::new(f64::NAN), Err(Error::InvalidGroup(_))));
     assert!("C8".parse::<Group>().unwrap() == Group::Cyclic { order: 8 });
     assert!("so(2)".parse::<Group>().unwrap() == Group::SO2);
     assert!("D4".parse::<Group>().is_err());
@@ -93,10 +78,7 @@ fn regular_representation_is_a_homomorphism() {
         for b in 0..8 {
             let ra = g.regular_representation(a).unwrap();
             let rb = g.regular_representation(b).unwrap();
-            assert_eq!(
-                matmul(&ra, &rb, 8),
-                g.regular_representation((a + b) % 8).unwrap()
-            );
+            assert_eq!(matmul(&ra, &rb, 8), g.regular_representation((a + b) % 8).unwrap());
         }
     }
 }
@@ -121,17 +103,11 @@ fn representations_are_orthogonal_homomorphisms() {
                         mt[j * d + i] = m[i * d + j];
                     }
                 }
-                assert!(
-                    max_diff(&matmul(&m, &mt, d), &identity) < 1e-12,
-                    "{task}: not orthogonal"
-                );
+                assert!(max_diff(&matmul(&m, &mt, d), &identity) < 1e-12, "{task}: not orthogonal");
                 for b in 0..8 {
                     let gb = c8.element(b).unwrap();
                     let prod = matmul(&m, &rep.matrix(&gb), d);
-                    assert!(
-                        max_diff(&prod, &rep.matrix(&ga.compose(&gb))) < 1e-12,
-                        "{task}: rho(ab) != rho(a) rho(b)"
-                    );
+                    assert!(max_diff(&prod, &rep.matrix(&ga.compose(&gb))) < 1e-12, "{task}: rho(ab) != rho(a) rho(b)");
                 }
             }
             // Acting equals multiplying by the matrix.
@@ -140,9 +116,7 @@ fn representations_are_orthogonal_homomorphisms() {
             let mut y = x.clone();
             rep.act(&g, &mut y).unwrap();
             let m = rep.matrix(&g);
-            let mx: Vec<f64> = (0..d)
-                .map(|i| (0..d).map(|j| m[i * d + j] * x[j]).sum())
-                .collect();
+            let mx: Vec<f64> = (0..d).map(|i| (0..d).map(|j| m[i * d + j] * x[j]).sum()).collect();
             assert!(max_diff(&y, &mx) < 1e-12);
         }
     }
@@ -172,13 +146,7 @@ fn layouts_are_consistent_and_match_the_paper() {
         assert!(seen.iter().all(|&c| c == 1), "{task}");
     }
     // Action and chunk: rho1 + rho0, rho1^3, rho0 per action; the latent has the chunk's layout.
-    let sym = TaskSymmetry::new(
-        "lift",
-        &TaskOptions::default(),
-        Group::cyclic(8).unwrap(),
-        4,
-    )
-    .unwrap();
+    let sym = TaskSymmetry::new("lift", &TaskOptions::default(), Group::cyclic(8).unwrap(), 4).unwrap();
     assert_eq!(sym.action.multiplicities(), (2, 4));
     assert_eq!(sym.chunk.multiplicities(), (8, 16));
     assert_eq!(sym.chunk_len(), 4);
@@ -209,7 +177,10 @@ fn observations_transform_as_their_declared_layout() {
                 rep.act(&g, &mut want).unwrap();
                 let got = env.observe().to_vec();
                 let err = max_diff(&got, &want);
-                assert!(err < 1e-5, "{task}, seed {seed}, element {k}: observation off by {err}\n got {got:?}\nwant {want:?}");
+                assert!(
+                    err < 1e-5,
+                    "{task}, seed {seed}, element {k}: observation off by {err}\n got {got:?}\nwant {want:?}"
+                );
             }
         }
     }
@@ -217,38 +188,20 @@ fn observations_transform_as_their_declared_layout() {
 
 #[test]
 fn bad_inputs_give_errors_and_leave_data_alone() {
-    let sym = TaskSymmetry::new(
-        "lift",
-        &TaskOptions::default(),
-        Group::cyclic(8).unwrap(),
-        4,
-    )
-    .unwrap();
+    let sym = TaskSymmetry::new("lift", &TaskOptions::default(), Group::cyclic(8).unwrap(), 4).unwrap();
     let g = sym.group.element(1).unwrap();
     let mut short = vec![0.0; 9];
-    assert!(matches!(
-        sym.act_action(&g, &mut short),
-        Err(Error::Env(equigym_envs::EnvError::WrongLength { .. }))
-    ));
+    assert!(matches!(sym.act_action(&g, &mut short), Err(Error::Env(equigym_envs::EnvError::WrongLength { .. }))));
     let mut nan = vec![0.1; 20];
     nan[13] = f64::NAN;
     let before = nan.clone();
     assert!(matches!(
         sym.act_action(&g, &mut nan),
-        Err(Error::Env(equigym_envs::EnvError::NonFinite {
-            index: 13,
-            ..
-        }))
+        Err(Error::Env(equigym_envs::EnvError::NonFinite { index: 13, .. }))
     ));
     assert_eq!(nan[..13], before[..13]);
     let mut rows = vec![0.5; 20];
     assert!(sym.action.act_each(&[g], &mut rows).is_err());
     assert!(sym.action.act_each(&[g, g], &mut rows).is_ok());
-    assert!(TaskSymmetry::new(
-        "lift",
-        &TaskOptions::default(),
-        Group::cyclic(8).unwrap(),
-        0
-    )
-    .is_err());
+    assert!(TaskSymmetry::new("lift", &TaskOptions::default(), Group::cyclic(8).unwrap(), 0).is_err());
 }

@@ -14,10 +14,7 @@ fn env(task: &str, joint_limits: bool) -> Env {
 }
 
 fn max_err(a: &[f64], b: &[f64]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max)
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max)
 }
 
 /// Observing the rotated state gives the rotated observation, for every task and element.
@@ -32,18 +29,11 @@ fn observation_of_rotated_state_is_rotated_observation() {
         for g in sym.group.elements().unwrap() {
             env.set_state(&state).unwrap();
             let fit = transform_state(&mut env, &g).unwrap();
-            assert!(
-                fit.position_error < 1e-4,
-                "{task}: the arm reaches the rotated start without limits"
-            );
+            assert!(fit.position_error < 1e-4, "{task}: the arm reaches the rotated start without limits");
             let mut expected = obs.clone();
             sym.act_observation(&g, &mut expected).unwrap();
             // Poses pass through rapier's f32 storage.
-            assert!(
-                max_err(env.observe(), &expected) < 1e-5,
-                "{task} at {} deg",
-                g.angle().to_degrees()
-            );
+            assert!(max_err(env.observe(), &expected) < 1e-5, "{task} at {} deg", g.angle().to_degrees());
         }
     }
 }
@@ -81,10 +71,7 @@ fn transitions_are_equivariant_without_joint_limits() {
             if k == 0 {
                 // Re-setting body poses makes rapier recompute centres of mass in f32; contacts
                 // amplify that rounding a little: the floor of the measurement.
-                assert!(
-                    err < 1e-3,
-                    "the identity transform changed the step by {err}"
-                );
+                assert!(err < 1e-3, "the identity transform changed the step by {err}");
             }
             // Positions (cube, gripper) tightly; orientations and the rest loosely: rapier's
             // friction uses a tangent basis that does not turn with the scene.
@@ -99,14 +86,8 @@ fn transitions_are_equivariant_without_joint_limits() {
         }
         env.set_state(&after).unwrap();
     }
-    assert!(
-        worst_position < 2e-3,
-        "largest position error without joint limits: {worst_position} m"
-    );
-    assert!(
-        worst < 3e-2,
-        "largest observation error without joint limits: {worst}"
-    );
+    assert!(worst_position < 2e-3, "largest position error without joint limits: {worst_position} m");
+    assert!(worst < 3e-2, "largest observation error without joint limits: {worst}");
 }
 
 /// With limits on, some rotated Lift states cannot be reached and the transitions break the
@@ -121,21 +102,11 @@ fn joint_limits_break_the_symmetry() {
     config.joint_limits = false;
     config.cartesian_control = true;
     let off = measure(&config).unwrap();
-    let err = |r: &equigym_wrappers::breaking::BreakingReport| {
-        r.mean_over_rotations(|row| row.hand_error_mean)
-    };
+    let err = |r: &equigym_wrappers::breaking::BreakingReport| r.mean_over_rotations(|row| row.hand_error_mean);
     assert!(on.invariance.iter().any(|r| r.unreachable > 0.0));
     assert!(off.invariance.iter().all(|r| r.unreachable == 0.0));
-    assert!(
-        err(&off) * 5.0 < err(&on),
-        "limits off {} vs on {}",
-        err(&off),
-        err(&on)
-    );
+    assert!(err(&off) * 5.0 < err(&on), "limits off {} vs on {}", err(&off), err(&on));
     // The joint controller re-solves the commanded joints within the IK tolerance: a small floor.
     assert!(on.invariance[0].observation_error_max < 2e-3);
-    assert_eq!(
-        off.replay[0].successes, off.replay[0].demos,
-        "the identity replay reproduces the demos"
-    );
+    assert_eq!(off.replay[0].successes, off.replay[0].demos, "the identity replay reproduces the demos");
 }

@@ -170,7 +170,9 @@ mod tests {
     }
 
     fn data(len: usize, salt: u32) -> Vec<f32> {
-        (0..len).map(|i| (((i as u32).wrapping_mul(2654435761).wrapping_add(salt) >> 8) as f32 / 16777216.0) - 0.5).collect()
+        (0..len)
+            .map(|i| (((i as u32).wrapping_mul(2654435761).wrapping_add(salt) >> 8) as f32 / 16777216.0) - 0.5)
+            .collect()
     }
 
     #[test]

@@ -133,11 +133,19 @@ macro_rules! real_impl {
             }
             #[inline(always)]
             fn max(self, other: Self) -> Self {
-                if self >= other { self } else { other }
+                if self >= other {
+                    self
+                } else {
+                    other
+                }
             }
             #[inline(always)]
             fn min(self, other: Self) -> Self {
-                if self <= other { self } else { other }
+                if self <= other {
+                    self
+                } else {
+                    other
+                }
             }
             #[inline(always)]
             fn is_finite(self) -> bool {
@@ -168,20 +176,30 @@ pub fn tanh_f32(x: f32) -> f32 {
     let a = x.abs().min(TANH_SATURATES);
     // series
     let a2 = a * a;
-    let series = a + a * a2
+    let series = a + a
+        * a2
         * (-1.0 / 3.0
-            + a2 * (2.0 / 15.0 + a2 * (-17.0 / 315.0 + a2 * (62.0 / 2835.0 + a2 * (-1382.0 / 155_925.0 + a2 * (21_844.0 / 6_081_075.0))))));
+            + a2 * (2.0 / 15.0
+                + a2 * (-17.0 / 315.0
+                    + a2 * (62.0 / 2835.0 + a2 * (-1382.0 / 155_925.0 + a2 * (21_844.0 / 6_081_075.0))))));
     // exp(2a)
     let y = 2.0 * a;
     let t = y * LOG2E + ROUND;
     let k = t.to_bits().wrapping_sub(ROUND.to_bits()) as i32;
     let kf = t - ROUND;
     let r = (y - kf * LN2_HI) - kf * LN2_LO;
-    let p = 1.0 + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0 + r * (1.0 / 5040.0)))))));
+    let p = 1.0
+        + r * (1.0
+            + r * (0.5
+                + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0 + r * (1.0 / 5040.0)))))));
     let e = p * f32::from_bits(((k + 127) as u32) << 23);
     let big = 1.0 - 2.0 / (e + 1.0);
     let v = if a < TANH_SERIES_BELOW { series } else { big };
-    if x < 0.0 { -v } else { v }
+    if x < 0.0 {
+        -v
+    } else {
+        v
+    }
 }
 
 /// Whether this machine runs the vector (AVX2 + FMA) copies of the kernels. Results are the

@@ -13,7 +13,8 @@ use std::process::ExitCode;
 
 use equigym_agents::{run, Method, Preset, RunConfig};
 
-const USAGE: &str = "usage: steer run --method {dsrl,equi,approx} --task {lift,stack,square} --seed S --steps N --out DIR \
+const USAGE: &str =
+    "usage: steer run --method {dsrl,equi,approx} --task {lift,stack,square} --seed S --steps N --out DIR \
 [--threads T] [--preset cpu|paper] [--no-joint-limits] [--controller joint|cartesian] [--eval-every N] \
 [--eval-episodes N] [--policy FILE] [--ent-init X] [--horizon N] [--quiet]";
 
@@ -30,9 +31,13 @@ fn parse(args: &[String]) -> Result<RunConfig, String> {
     let mut it = args[1..].iter();
     while let Some(a) = it.next() {
         let flag = matches!(a.as_str(), "--no-joint-limits" | "--quiet");
-        let val = if flag { None } else { Some(it.next().ok_or_else(|| format!("{a} needs a value\n{USAGE}"))?.clone()) };
+        let val =
+            if flag { None } else { Some(it.next().ok_or_else(|| format!("{a} needs a value\n{USAGE}"))?.clone()) };
         let num = |v: &Option<String>| -> Result<u64, String> {
-            v.as_deref().unwrap_or("").parse::<u64>().map_err(|_| format!("{a} takes a non-negative integer, got {:?}", v.as_deref().unwrap_or("")))
+            v.as_deref()
+                .unwrap_or("")
+                .parse::<u64>()
+                .map_err(|_| format!("{a} takes a non-negative integer, got {:?}", v.as_deref().unwrap_or("")))
         };
         match a.as_str() {
             "--method" => method = Some(Method::parse(val.as_deref().unwrap_or("")).map_err(|e| e.to_string())?),
@@ -63,7 +68,9 @@ fn parse(args: &[String]) -> Result<RunConfig, String> {
             "--eval-every" => cfg.eval_every = num()?,
             "--eval-episodes" => cfg.eval_episodes = num()?,
             "--policy" => cfg.policy = Some(v.into()),
-            "--ent-init" => cfg.ent_init = Some(v.parse::<f64>().map_err(|_| format!("--ent-init takes a number, got '{v}'"))?),
+            "--ent-init" => {
+                cfg.ent_init = Some(v.parse::<f64>().map_err(|_| format!("--ent-init takes a number, got '{v}'"))?)
+            }
             "--horizon" => cfg.horizon = Some(num()?),
             "--quiet" => cfg.progress = false,
             other => return Err(format!("unknown option {other}\n{USAGE}")),

@@ -58,7 +58,8 @@ impl Expert for LiftExpert {
             }
             Phase::Close if self.timer >= 8 => {
                 self.phase = Phase::Lift;
-                self.grasp_xy = Vector3::new(self.way.commanded.x, self.way.commanded.y, env.task().scene_spec().table.top);
+                self.grasp_xy =
+                    Vector3::new(self.way.commanded.x, self.way.commanded.y, env.task().scene_spec().table.top);
             }
             _ => {}
         }

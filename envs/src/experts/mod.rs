@@ -41,7 +41,11 @@ impl Default for ExpertOptions {
 
 /// Build the expert of a task.
 pub fn make_expert(task: &str, options: ExpertOptions) -> Result<Box<dyn Expert>> {
-    if !(options.position_noise.is_finite() && options.position_noise >= 0.0 && options.yaw_noise.is_finite() && options.yaw_noise >= 0.0) {
+    if !(options.position_noise.is_finite()
+        && options.position_noise >= 0.0
+        && options.yaw_noise.is_finite()
+        && options.yaw_noise >= 0.0)
+    {
         return Err(EnvError::InvalidConfig("expert noise must be finite and >= 0".into()));
     }
     match task {

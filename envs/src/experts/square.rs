@@ -159,7 +159,8 @@ impl Expert for SquareExpert {
                 if lifted {
                     // Turn the hand so that the nut's yaw matches the peg's modulo pi/2: by the
                     // smallest turn, unless that takes the wrist too far from its home posture.
-                    let d = (Waypoints::yaw(&peg_pose) - Waypoints::yaw(&nut_pose) + FRAC_PI_4).rem_euclid(FRAC_PI_2) - FRAC_PI_4;
+                    let d = (Waypoints::yaw(&peg_pose) - Waypoints::yaw(&nut_pose) + FRAC_PI_4).rem_euclid(FRAC_PI_2)
+                        - FRAC_PI_4;
                     let mut turn = self.grasp_turn + d;
                     if turn.abs() > MAX_WRIST_TURN {
                         turn -= FRAC_PI_2 * turn.signum();

@@ -169,7 +169,8 @@ impl ArmController for Cartesian {
         let reachable = if fit.converged { *target } else { ctx.model.tcp_pose(ctx.base, &self.q_des) };
         let now = ctx.model.tcp_pose(ctx.base, q_meas);
         self.tcp_start = approach(&now, &self.tcp_end, MAX_TCP_LEAD, MAX_TCP_LEAD_ANGLE);
-        self.tcp_end = approach(&self.tcp_start, &reachable, MAX_TCP_SPEED * ctx.period, MAX_TCP_ANGULAR_SPEED * ctx.period);
+        self.tcp_end =
+            approach(&self.tcp_start, &reachable, MAX_TCP_SPEED * ctx.period, MAX_TCP_ANGULAR_SPEED * ctx.period);
         for k in 0..q_meas.len() {
             self.q_cmd[k] = self.q_cmd[k].clamp(q_meas[k] - MAX_JOINT_LEAD, q_meas[k] + MAX_JOINT_LEAD);
         }
@@ -272,7 +273,11 @@ pub fn approach(from: &Isometry3<f64>, to: &Isometry3<f64>, max_step: f64, max_a
     let dp = clamp_norm(to.translation.vector - from.translation.vector, max_step);
     let turn = to.rotation * from.rotation.inverse();
     let angle = turn.angle();
-    let turn = if angle > max_angle { UnitQuaternion::from_scaled_axis(turn.scaled_axis() * (max_angle / angle)) } else { turn };
+    let turn = if angle > max_angle {
+        UnitQuaternion::from_scaled_axis(turn.scaled_axis() * (max_angle / angle))
+    } else {
+        turn
+    };
     Isometry3::from_parts((from.translation.vector + dp).into(), turn * from.rotation)
 }
 

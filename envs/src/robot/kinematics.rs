@@ -107,7 +107,13 @@ impl RobotModel {
 
     /// Solve for joints that put the TCP at `target`, starting from `q` (updated in place) and
     /// never leaving the joint limits. Unreachable targets end at the closest pose found.
-    pub fn solve_ik(&self, base: &Isometry3<f64>, target: &Isometry3<f64>, q: &mut [f64], opts: &IkOptions) -> IkReport {
+    pub fn solve_ik(
+        &self,
+        base: &Isometry3<f64>,
+        target: &Isometry3<f64>,
+        q: &mut [f64],
+        opts: &IkOptions,
+    ) -> IkReport {
         let n = self.dof().min(MAX_DOF);
         let limits = |k: usize| {
             let j = &self.joints[k];
@@ -125,13 +131,15 @@ impl RobotModel {
         };
         clamp(q);
         let mut cols = [Vector6::zeros(); MAX_DOF];
-        let mut report = IkReport { iterations: 0, position_error: f64::INFINITY, rotation_error: f64::INFINITY, converged: false };
+        let mut report =
+            IkReport { iterations: 0, position_error: f64::INFINITY, rotation_error: f64::INFINITY, converged: false };
         let w = opts.rotation_weight;
         for it in 0..=opts.max_iterations {
             let tcp = self.jacobian(base, q, &mut cols);
             let ep = target.translation.vector - tcp.translation.vector;
             let er = rotation_error(&target.rotation, &tcp.rotation);
-            report = IkReport { iterations: it, position_error: ep.norm(), rotation_error: er.norm(), converged: false };
+            report =
+                IkReport { iterations: it, position_error: ep.norm(), rotation_error: er.norm(), converged: false };
             if report.position_error < opts.position_tolerance && report.rotation_error < opts.rotation_tolerance {
                 report.converged = true;
                 break;

@@ -33,7 +33,9 @@ use rapier3d::prelude::*;
 use super::{LinkInertia, RobotModel};
 use crate::error::{EnvError, Result};
 use crate::math::{from_pose, to_pose, to_vector};
-use crate::world::{colour_code, link_collider, PhysicsConfig, FIRST_LINK_GROUP_BIT, GROUP_OBJECT, GROUP_ROBOT, GROUP_STATIC};
+use crate::world::{
+    colour_code, link_collider, PhysicsConfig, FIRST_LINK_GROUP_BIT, GROUP_OBJECT, GROUP_ROBOT, GROUP_STATIC,
+};
 
 /// Finger pads are rubber: their friction is this multiple of the scene's.
 pub const FINGER_PAD_FRICTION: f64 = 2.0;
@@ -89,7 +91,8 @@ fn mass_properties(i: &LinkInertia, offset: &Isometry3<f64>, what: &str) -> Resu
             reason: format!("{what}: mass and inertia must be finite and non-negative"),
         });
     }
-    Ok(MassProperties::new(to_vector(&i.centre_of_mass), i.mass as f32, to_vector(&i.principal_inertia)).transform_by(&to_pose(offset)))
+    Ok(MassProperties::new(to_vector(&i.centre_of_mass), i.mass as f32, to_vector(&i.principal_inertia))
+        .transform_by(&to_pose(offset)))
 }
 
 /// Collision groups of self-collision index `index` given which index pairs may collide.
@@ -117,10 +120,17 @@ impl RobotRig {
     ) -> Result<Self> {
         let dof = model.dof();
         if q0.len() != dof {
-            return Err(EnvError::WrongLength { what: "initial joint configuration".into(), expected: dof, got: q0.len() });
+            return Err(EnvError::WrongLength {
+                what: "initial joint configuration".into(),
+                expected: dof,
+                got: q0.len(),
+            });
         }
         if dof + 2 + FIRST_LINK_GROUP_BIT as usize > 32 {
-            return Err(EnvError::Urdf { source_name: "<robot>".into(), reason: format!("{dof} arm joints: at most 26 are supported") });
+            return Err(EnvError::Urdf {
+                source_name: "<robot>".into(),
+                reason: format!("{dof} arm joints: at most 26 are supported"),
+            });
         }
         // Bodies of each arm frame with the links (and, last, the hand) attached to it.
         let frames = dof + 1;
@@ -140,20 +150,28 @@ impl RobotRig {
             if frame == dof {
                 mprops += mass_properties(&model.hand_inertia, &model.hand_offset, &model.hand_link)?;
             }
-            let builder = if frame == 0 { RigidBodyBuilder::fixed().pose(to_pose(&base)) } else { RigidBodyBuilder::dynamic() };
-            let body = world.insert_body(builder.gravity_scale(0.0).can_sleep(false).additional_mass_properties(mprops));
+            let builder =
+                if frame == 0 { RigidBodyBuilder::fixed().pose(to_pose(&base)) } else { RigidBodyBuilder::dynamic() };
+            let body =
+                world.insert_body(builder.gravity_scale(0.0).can_sleep(false).additional_mass_properties(mprops));
             let groups = link_groups(frame, &none);
             let colour = colour_code(LINK_COLOURS[frame % 2]);
             let mut cols = Vec::new();
             for link in model.links.iter().filter(|l| l.frame == frame) {
                 for s in &link.shapes {
-                    let c = link_collider(s, &link.offset).friction(robot_friction).collision_groups(groups).user_data(colour);
+                    let c = link_collider(s, &link.offset)
+                        .friction(robot_friction)
+                        .collision_groups(groups)
+                        .user_data(colour);
                     cols.push(world.insert_collider(c, Some(body)));
                 }
             }
             if frame == dof {
                 for s in &model.hand_shapes {
-                    let c = link_collider(s, &model.hand_offset).friction(robot_friction).collision_groups(groups).user_data(colour);
+                    let c = link_collider(s, &model.hand_offset)
+                        .friction(robot_friction)
+                        .collision_groups(groups)
+                        .user_data(colour);
                     let h = world.insert_collider(c, Some(body));
                     cols.push(h);
                     hand_colliders.push(h);
@@ -181,7 +199,10 @@ impl RobotRig {
             let handle = world
                 .multibody_joints
                 .insert(link_bodies[k], link_bodies[k + 1], b.build(), true)
-                .ok_or_else(|| EnvError::Urdf { source_name: "<robot>".into(), reason: format!("joint '{}' closes a loop", j.name) })?;
+                .ok_or_else(|| EnvError::Urdf {
+                    source_name: "<robot>".into(),
+                    reason: format!("joint '{}' closes a loop", j.name),
+                })?;
             arm_joints.push(handle);
         }
 
@@ -219,10 +240,10 @@ impl RobotRig {
                 .motor_position(JointAxis::LinX, f.lower as f32, FINGER_STIFFNESS, FINGER_DAMPING)
                 .motor_max_force(JointAxis::LinX, finger_force.min(f.max_effort) as f32)
                 .build();
-            let handle = world
-                .multibody_joints
-                .insert(hand_body, body, joint, true)
-                .ok_or_else(|| EnvError::Urdf { source_name: "<robot>".into(), reason: format!("finger '{}' closes a loop", f.name) })?;
+            let handle = world.multibody_joints.insert(hand_body, body, joint, true).ok_or_else(|| EnvError::Urdf {
+                source_name: "<robot>".into(),
+                reason: format!("finger '{}' closes a loop", f.name),
+            })?;
             finger_bodies.push(body);
             finger_joints.push(handle);
             finger_colliders.push(cols);
@@ -251,11 +272,14 @@ impl RobotRig {
         };
         let mut arm_dofs = Vec::with_capacity(dof);
         for h in &rig.arm_joints {
-            arm_dofs.push(dof_of(world, *h).ok_or_else(|| EnvError::InvalidConfig("the arm multibody lost a joint".into()))?);
+            arm_dofs.push(
+                dof_of(world, *h).ok_or_else(|| EnvError::InvalidConfig("the arm multibody lost a joint".into()))?,
+            );
         }
         rig.arm_dofs = arm_dofs;
         for k in 0..2 {
-            rig.finger_dofs[k] = dof_of(world, rig.finger_joints[k]).ok_or_else(|| EnvError::InvalidConfig("the arm multibody lost a finger".into()))?;
+            rig.finger_dofs[k] = dof_of(world, rig.finger_joints[k])
+                .ok_or_else(|| EnvError::InvalidConfig("the arm multibody lost a finger".into()))?;
         }
         {
             let (arm_dofs, finger_dofs) = (rig.arm_dofs.clone(), rig.finger_dofs);

@@ -32,7 +32,11 @@ pub fn add_boxes(
     // Extra solver iterations on objects converge the chain table - object - hand - arm when the
     // arm crushes an object onto the table (4 iterations left a cube 3.6-4.8 mm deep under
     // adversarial targets; the extra iterations only run while something touches the object).
-    let builder = if fixed { RigidBodyBuilder::fixed() } else { RigidBodyBuilder::dynamic().additional_solver_iterations(OBJECT_EXTRA_SOLVER_ITERATIONS) };
+    let builder = if fixed {
+        RigidBodyBuilder::fixed()
+    } else {
+        RigidBodyBuilder::dynamic().additional_solver_iterations(OBJECT_EXTRA_SOLVER_ITERATIONS)
+    };
     let body = scene.world.insert_body(builder);
     let groups = if fixed {
         InteractionGroups::new(GROUP_STATIC, Group::ALL, InteractionTestMode::And)
@@ -43,15 +47,17 @@ pub fn add_boxes(
     let mut lo = Vector3::repeat(f64::INFINITY);
     let mut hi = Vector3::repeat(f64::NEG_INFINITY);
     for (pose, h) in parts {
-        colliders.push(scene.world.insert_collider(
-            ColliderBuilder::cuboid(h.x as f32, h.y as f32, h.z as f32)
-                .position(to_pose(pose))
-                .density(OBJECT_DENSITY)
-                .friction(scene.config.friction as f32)
-                .collision_groups(groups)
-                .user_data(colour_code(rgb)),
-            Some(body),
-        ));
+        colliders.push(
+            scene.world.insert_collider(
+                ColliderBuilder::cuboid(h.x as f32, h.y as f32, h.z as f32)
+                    .position(to_pose(pose))
+                    .density(OBJECT_DENSITY)
+                    .friction(scene.config.friction as f32)
+                    .collision_groups(groups)
+                    .user_data(colour_code(rgb)),
+                Some(body),
+            ),
+        );
         let c = pose.translation.vector;
         let r = pose.rotation.to_rotation_matrix();
         let ext = r.matrix().abs() * h;
@@ -92,10 +98,11 @@ pub fn touching(scene: &Scene, a: &TaskObject, b: &TaskObject) -> bool {
 
 /// Append the gripper fields every task observes (TCP position, 6D rotation, finger travels).
 pub fn with_gripper_fields(layout: Layout) -> Layout {
-    layout
-        .with("gripper_pos", FieldKind::Position, 3)
-        .with("gripper_rot6d", FieldKind::Rotation6d, 6)
-        .with("gripper_joint_pos", FieldKind::Invariant, 2)
+    layout.with("gripper_pos", FieldKind::Position, 3).with("gripper_rot6d", FieldKind::Rotation6d, 6).with(
+        "gripper_joint_pos",
+        FieldKind::Invariant,
+        2,
+    )
 }
 
 /// Write the 11 gripper values at the start of `out`.

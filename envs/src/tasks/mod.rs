@@ -136,7 +136,9 @@ pub(crate) fn range_option(options: &TaskOptions, name: &str, default: (f64, f64
     match options.ranges.iter().find(|(n, _, _)| n == name) {
         None => Ok(default),
         Some((_, lo, hi)) if lo.is_finite() && hi.is_finite() && lo <= hi => Ok((*lo, *hi)),
-        Some((_, lo, hi)) => Err(EnvError::InvalidConfig(format!("range '{name}' = [{lo}, {hi}] is not a finite interval"))),
+        Some((_, lo, hi)) => {
+            Err(EnvError::InvalidConfig(format!("range '{name}' = [{lo}, {hi}] is not a finite interval")))
+        }
     }
 }
 

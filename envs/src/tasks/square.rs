@@ -106,13 +106,17 @@ impl Task for Square {
             (Isometry3::translation(-(w + t / 2.0), 0.0, 0.0), side),
             (Isometry3::translation(0.0, w + t / 2.0, 0.0), front),
             (Isometry3::translation(0.0, -(w + t / 2.0), 0.0), front),
-            (Isometry3::from_parts(handle_centre().into(), nalgebra::UnitQuaternion::identity()), Vector3::from(HANDLE_HALF)),
+            (
+                Isometry3::from_parts(handle_centre().into(), nalgebra::UnitQuaternion::identity()),
+                Vector3::from(HANDLE_HALF),
+            ),
         ];
         let nut = common::add_boxes(scene, "nut", &parts, [150, 110, 40], false);
         // Extra solver iterations on the nut let the friction of a grasp on it converge: with
         // none the expert's grip does not lift it, with 4 it slips out of the hand more often.
         scene.world.bodies[nut.body].set_additional_solver_iterations(NUT_EXTRA_SOLVER_ITERATIONS);
-        let peg = common::add_boxes(scene, "peg", &[(Isometry3::identity(), Vector3::from(PEG_HALF))], [120, 120, 130], true);
+        let peg =
+            common::add_boxes(scene, "peg", &[(Isometry3::identity(), Vector3::from(PEG_HALF))], [120, 120, 130], true);
         self.objects = vec![nut, peg];
     }
 
@@ -127,7 +131,9 @@ impl Task for Square {
             nut = common::yaw_pose(x, y, TABLE_TOP + NUT_HALF_HEIGHT, yaw);
             let (x, y, yaw) = spots[1];
             peg = common::yaw_pose(x, y, TABLE_TOP + PEG_HALF[2], yaw);
-            if common::clear_of_robot(scene, &self.objects[0], &nut) && common::clear_of_robot(scene, &self.objects[1], &peg) {
+            if common::clear_of_robot(scene, &self.objects[0], &nut)
+                && common::clear_of_robot(scene, &self.objects[1], &peg)
+            {
                 break;
             }
         }
