@@ -89,7 +89,7 @@ impl DiffusionPolicy {
         precision: Option<&str>,
     ) -> PyResult<Bound<'py, PyArray3<f64>>> {
         let precision: equigym_wrappers::edp::Precision = match precision {
-            Some(p) => p.parse().map_err(sym_err)?,
+            Some(p) => p.parse().map_err(to_py)?,
             None => self.inner.precision,
         };
         let (od, ad) = (self.inner.obs_dim(), self.inner.action_dim());
