@@ -11,9 +11,16 @@ from pathlib import Path
 
 import numpy as np
 
-LABELS = {"dsrl": "DSRL", "equi": "Equi-DSRL", "approx": "Approx-Equi-DSRL", "sac": "SAC (raw actions)",
-          # Runs of the Rust agents (equigym.steer; run.json says "agent": "rust").
-          "rust-dsrl": "DSRL (Rust)", "rust-equi": "Equi-DSRL (Rust)", "rust-approx": "Approx-Equi-DSRL (Rust)"}
+LABELS = {
+    "dsrl": "DSRL",
+    "equi": "Equi-DSRL",
+    "approx": "Approx-Equi-DSRL",
+    "sac": "SAC (raw actions)",
+    # Runs of the Rust agents (equigym.steer; run.json says "agent": "rust").
+    "rust-dsrl": "DSRL (Rust)",
+    "rust-equi": "Equi-DSRL (Rust)",
+    "rust-approx": "Approx-Equi-DSRL (Rust)",
+}
 
 
 def _roots(root: str | Path | list[str | Path]) -> list[Path]:
@@ -37,7 +44,11 @@ def load_runs(root: str | Path | list[str | Path]) -> dict[tuple[str, str], list
 
 def load_base(root: str | Path | list[str | Path]) -> dict[str, float]:
     """Base-policy success per task folder (``<root>/<task>/base.json``, from ``steer base``/``sweep``)."""
-    return {p.parent.name: float(json.loads(p.read_text())["success_rate"]) for d in _roots(root) for p in sorted(d.glob("*/base.json"))}
+    return {
+        p.parent.name: float(json.loads(p.read_text())["success_rate"])
+        for d in _roots(root)
+        for p in sorted(d.glob("*/base.json"))
+    }
 
 
 def write_report(root: str | Path | list[str | Path], out: str | Path, base: dict[str, float] | None = None) -> str:
@@ -47,9 +58,14 @@ def write_report(root: str | Path | list[str | Path], out: str | Path, base: dic
     out.mkdir(parents=True, exist_ok=True)
     tasks = sorted({t for t, _ in runs})
     methods = [m for m in LABELS if any(m == mm for _, mm in runs)]
-    lines = ["# Steering results", "", f"From `{', '.join(str(r) for r in _roots(root))}` by `python -m baselines.steer report`. Success rates of the "
-             "stochastic steering policy, each evaluation >= 50 episodes unless the runs said otherwise; mean +- standard "
-             "error over seeds. The base policy column is the EDP alone (latent noise N(0, I), 100 episodes).", ""]
+    lines = [
+        "# Steering results",
+        "",
+        f"From `{', '.join(str(r) for r in _roots(root))}` by `python -m baselines.steer report`. Success rates of the "
+        "stochastic steering policy, each evaluation >= 50 episodes unless the runs said otherwise; mean +- standard "
+        "error over seeds. The base policy column is the EDP alone (latent noise N(0, I), 100 episodes).",
+        "",
+    ]
 
     def cell(values: list[float]) -> str:
         se = np.std(values, ddof=1) / np.sqrt(len(values)) if len(values) > 1 else float("nan")

@@ -32,38 +32,40 @@ def net_forward(spec: dict, p: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         k = L["kind"]
         if k == "dense":
             n_in, n_out, w, b = L["n_in"], L["n_out"], L["w"], L["b"]
-            x = x @ p[w:w + n_in * n_out].view(n_in, n_out) + p[b:b + n_out]
+            x = x @ p[w : w + n_in * n_out].view(n_in, n_out) + p[b : b + n_out]
         elif k == "equi":
             n_in, n_out, w = L["n_in"], L["n_out"], L["w"]
             entries = torch.tensor(L["entries"], dtype=torch.long)
             vals = p[w + torch.tensor(L["pidx"], dtype=torch.long)] * torch.tensor(L["coefs"], dtype=torch.float64)
             W = torch.zeros(n_in * n_out, dtype=torch.float64).index_add(0, entries, vals)
             bias_p = p[w + L["n_weights"] + torch.tensor(L["bias_pidx"], dtype=torch.long)]
-            bias = torch.zeros(n_out, dtype=torch.float64).index_add(0, torch.tensor(L["bias_out"], dtype=torch.long), bias_p)
+            bias = torch.zeros(n_out, dtype=torch.float64).index_add(
+                0, torch.tensor(L["bias_out"], dtype=torch.long), bias_p
+            )
             if L["plain"] is not None:
                 pw, pb = L["plain"]
-                W = W + p[pw:pw + n_in * n_out]
-                bias = bias + p[pb:pb + n_out]
+                W = W + p[pw : pw + n_in * n_out]
+                bias = bias + p[pb : pb + n_out]
             x = x @ W.view(n_in, n_out) + bias
         elif k == "layer_norm":
             n, g, s = L["n"], L["g"], L["s"]
-            x = torch.nn.functional.layer_norm(x, (n,), p[g:g + n], p[s:s + n], eps=1e-5)
+            x = torch.nn.functional.layer_norm(x, (n,), p[g : g + n], p[s : s + n], eps=1e-5)
         elif k == "tanh":
             x = torch.tanh(x)
         elif k == "relu":
             x = torch.relu(x)
         elif k == "pool_head":
             f, o, w, b = L["fields"], L["order"], L["w"], L["b"]
-            q = x.view(len(x), f, o).max(dim=2).values @ p[w:w + f] + p[b]
+            q = x.view(len(x), f, o).max(dim=2).values @ p[w : w + f] + p[b]
             if L["plain"] is not None:
                 pw, pb = L["plain"]
-                q = q + x @ p[pw:pw + f * o] + p[pb]
+                q = q + x @ p[pw : pw + f * o] + p[pb]
             x = q.unsqueeze(1)
         elif k == "circulant":
             fi, fo, w, b = L["f_in"], L["f_out"], L["w"], L["b"]
             T = dft_matrix()
             n = fi * fo
-            blk = [p[w + i * n:w + (i + 1) * n].view(fi, fo) for i in range(8)]
+            blk = [p[w + i * n : w + (i + 1) * n].view(fi, fo) for i in range(8)]
             xh = x.view(len(x), fi, 8) @ T.T  # (B, F_in, 8 components)
             out = [xh[..., 0] @ blk[0], xh[..., 1] @ blk[1]]
             for j in range(3):
@@ -71,7 +73,7 @@ def net_forward(spec: dict, p: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
                 re, im = xh[..., 2 + 2 * j], xh[..., 3 + 2 * j]
                 out += [re @ A - im @ Bm, re @ Bm + im @ A]  # (A + iB)(re + i im)
             yh = torch.stack(out, dim=2)  # (B, F_out, 8)
-            x = ((yh @ T) + p[b:b + fo].unsqueeze(1)).reshape(len(x), fo * 8)
+            x = ((yh @ T) + p[b : b + fo].unsqueeze(1)).reshape(len(x), fo * 8)
         else:
             raise AssertionError(k)
     return x
@@ -80,11 +82,13 @@ def net_forward(spec: dict, p: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
 def squash(case: dict, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     if case["radial"] is None:  # SB3's tanh squash
         a = torch.tanh(u)
-        return a, torch.log(1 - a ** 2 + 1e-6).sum(dim=1)
+        return a, torch.log(1 - a**2 + 1e-6).sum(dim=1)
     from baselines.agents import _radial_squash  # the SB3 Equi-DSRL actor's own formula
 
     pairs, singles = case["radial"]
-    return _radial_squash(u, torch.tensor(pairs, dtype=torch.long).reshape(-1, 2), torch.tensor(singles, dtype=torch.long))
+    return _radial_squash(
+        u, torch.tensor(pairs, dtype=torch.long).reshape(-1, 2), torch.tensor(singles, dtype=torch.long)
+    )
 
 
 def actor_sample(case: dict, p: torch.Tensor, obs: torch.Tensor, eps: torch.Tensor):
@@ -124,7 +128,9 @@ def test_sac_gradients_match_pytorch(method):
         loss = 0.5 * ((q(k, obs, act) - y) ** 2).mean()
         (g,) = torch.autograd.grad(loss, pcs[k])
         assert math.isclose(loss.item(), c["critic_losses"][k], rel_tol=1e-10)
-        np.testing.assert_allclose(g.numpy(), c["critic_grads"][k], rtol=1e-7, atol=1e-10, err_msg=f"{method} critic {k}")
+        np.testing.assert_allclose(
+            g.numpy(), c["critic_grads"][k], rtol=1e-7, atol=1e-10, err_msg=f"{method} critic {k}"
+        )
     # actor loss through both critics
     a1, logp1 = actor_sample(c, pa, obs, eps1)
     np.testing.assert_allclose(logp1.detach().numpy(), c["logp"], rtol=1e-9, atol=1e-9)

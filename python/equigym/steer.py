@@ -44,15 +44,43 @@ def _policy(task: str, policy: str | None) -> str:
     return str(shipped_policy(task))
 
 
-def run(method: str, task: str = "lift", seed: int = 0, steps: int = 20_000, out: str | Path = "runs/steer-rust", *,
-        threads: int = 1, preset: str = "cpu", joint_limits: bool = True, controller: str | None = None,
-        eval_every: int = 2000, eval_episodes: int = 50, policy: str | None = None, ent_init: float | None = None,
-        horizon: int | None = None, progress: bool = True) -> dict[str, Any]:
+def run(
+    method: str,
+    task: str = "lift",
+    seed: int = 0,
+    steps: int = 20_000,
+    out: str | Path = "runs/steer-rust",
+    *,
+    threads: int = 1,
+    preset: str = "cpu",
+    joint_limits: bool = True,
+    controller: str | None = None,
+    eval_every: int = 2000,
+    eval_episodes: int = 50,
+    policy: str | None = None,
+    ent_init: float | None = None,
+    horizon: int | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
     """One Rust steering run (see the module docs); returns its summary (``run_dir``, ``rows``,
     ``env_steps``, ``grad_steps``, ``seconds``, ``params_hash``, ``fields``, parameter counts)."""
-    return _core.steer_run(method, task, seed, steps, str(out), threads=threads, preset=preset, joint_limits=joint_limits,
-                           controller=controller, eval_every=eval_every, eval_episodes=eval_episodes,
-                           policy=_policy(task, policy), ent_init=ent_init, horizon=horizon, progress=progress)
+    return _core.steer_run(
+        method,
+        task,
+        seed,
+        steps,
+        str(out),
+        threads=threads,
+        preset=preset,
+        joint_limits=joint_limits,
+        controller=controller,
+        eval_every=eval_every,
+        eval_episodes=eval_episodes,
+        policy=_policy(task, policy),
+        ent_init=ent_init,
+        horizon=horizon,
+        progress=progress,
+    )
 
 
 def _trainable(config: dict[str, Any]) -> None:
@@ -67,9 +95,21 @@ def _trainable(config: dict[str, Any]) -> None:
     while True:
         target = min(target, c["steps"])
         if c["agent"] == "rust":
-            s = run(c["method"], c["task"], c["seed"], target, c["out"], threads=1, preset=c["preset"],
-                    joint_limits=c["joint_limits"], eval_every=every, eval_episodes=c["eval_episodes"],
-                    policy=c["policy"], ent_init=c["ent_init"], progress=False)
+            s = run(
+                c["method"],
+                c["task"],
+                c["seed"],
+                target,
+                c["out"],
+                threads=1,
+                preset=c["preset"],
+                joint_limits=c["joint_limits"],
+                eval_every=every,
+                eval_episodes=c["eval_episodes"],
+                policy=c["policy"],
+                ent_init=c["ent_init"],
+                progress=False,
+            )
             last = s["rows"][-1] if s["rows"] else (0, float("nan"), float("nan"), 0.0)
             metrics = {"env_steps": last[0], "success_rate": last[1], "mean_q": last[2], "run_seconds": s["seconds"]}
         else:
@@ -79,8 +119,19 @@ def _trainable(config: dict[str, Any]) -> None:
             preset = {"name": c["preset"], **PRESETS[c["preset"]]}
             if c["ent_init"] is not None:
                 preset["ent_init"] = c["ent_init"]
-            d = sb3_run(c["method"], c["task"], c["seed"], target, c["out"], preset, c["joint_limits"], every, c["eval_episodes"],
-                        c["policy"], progress=False)
+            d = sb3_run(
+                c["method"],
+                c["task"],
+                c["seed"],
+                target,
+                c["out"],
+                preset,
+                c["joint_limits"],
+                every,
+                c["eval_episodes"],
+                c["policy"],
+                progress=False,
+            )
             rows = (d / "log.csv").read_text().strip().splitlines()[1:]
             last = [float(v) for v in rows[-1].split(",")] if rows else [0, float("nan"), float("nan"), 0.0]
             metrics = {"env_steps": int(last[0]), "success_rate": last[1], "mean_q": last[2], "run_seconds": last[3]}
@@ -107,8 +158,14 @@ def sweep(a: argparse.Namespace) -> None:
     space = {
         "job": tune.grid_search(jobs),
         "task": tune.grid_search(a.tasks),
-        "steps": a.steps, "preset": a.preset, "joint_limits": not a.no_joint_limits, "eval_every": a.eval_every,
-        "eval_episodes": a.eval_episodes, "policy": a.policy, "ent_init": a.ent_init, "out_root": str(out),
+        "steps": a.steps,
+        "preset": a.preset,
+        "joint_limits": not a.no_joint_limits,
+        "eval_every": a.eval_every,
+        "eval_episodes": a.eval_episodes,
+        "policy": a.policy,
+        "ent_init": a.ent_init,
+        "out_root": str(out),
     }
 
     def trainable(config: dict[str, Any]) -> None:
@@ -116,8 +173,12 @@ def sweep(a: argparse.Namespace) -> None:
         c["out"] = str(Path(c["out_root"]) / c["agent"])
         _trainable(c)
 
-    ray.init(address=a.address, num_cpus=a.cpus if a.address is None else None, ignore_reinit_error=True,
-             runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}} if a.sb3 else None)
+    ray.init(
+        address=a.address,
+        num_cpus=a.cpus if a.address is None else None,
+        ignore_reinit_error=True,
+        runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}} if a.sb3 else None,
+    )
     resources = tune.with_resources(trainable, {"cpu": 1})
     storage = str(out / "tune")
     name = "steer"
@@ -125,13 +186,24 @@ def sweep(a: argparse.Namespace) -> None:
     if a.resume and tune.Tuner.can_restore(str(Path(storage) / name)):
         tuner = tune.Tuner.restore(str(Path(storage) / name), resources, resume_errored=True)
     else:
-        tuner = tune.Tuner(resources, param_space=space,
-                           run_config=tune.RunConfig(name=name, storage_path=storage, verbose=1))
+        tuner = tune.Tuner(
+            resources, param_space=space, run_config=tune.RunConfig(name=name, storage_path=storage, verbose=1)
+        )
     results = tuner.fit()
     wall = time.time() - started
     failed = [r for r in results if r.error is not None]
-    (out / "sweep.json").write_text(json.dumps({"trials": len(results), "failed": len(failed), "wall_seconds": round(wall, 1),
-                                                "cpus": a.cpus, "args": sys.argv[1:]}, indent=1))
+    (out / "sweep.json").write_text(
+        json.dumps(
+            {
+                "trials": len(results),
+                "failed": len(failed),
+                "wall_seconds": round(wall, 1),
+                "cpus": a.cpus,
+                "args": sys.argv[1:],
+            },
+            indent=1,
+        )
+    )
     print(f"{len(results)} trials, {len(failed)} failed, {wall:.0f} s wall")
     if failed:
         raise SystemExit(f"{len(failed)} trials failed; rerun with --resume")
@@ -147,8 +219,9 @@ def report(a: argparse.Namespace) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(prog="python -m equigym.steer", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        prog="python -m equigym.steer", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     sub = p.add_subparsers(dest="cmd", required=True)
     for name in ("run", "sweep"):
         s = sub.add_parser(name)
@@ -156,7 +229,9 @@ def main(argv: list[str] | None = None) -> None:
             s.add_argument("--method", choices=METHODS, required=True)
             s.add_argument("--task", choices=TASKS, default="lift")
             s.add_argument("--seed", type=int, default=0)
-            s.add_argument("--threads", type=int, default=1, help="environment / denoising threads (results do not depend on it)")
+            s.add_argument(
+                "--threads", type=int, default=1, help="environment / denoising threads (results do not depend on it)"
+            )
             s.add_argument("--controller", choices=("joint", "cartesian"), default=None)
             s.add_argument("--horizon", type=int, default=None, help="episode length override (control steps)")
             s.add_argument("--quiet", action="store_true")
@@ -164,7 +239,9 @@ def main(argv: list[str] | None = None) -> None:
         else:
             s.add_argument("--methods", nargs="*", choices=METHODS, default=list(METHODS))
             s.add_argument("--sb3", nargs="*", choices=METHODS, default=None, help="SB3 + escnn methods to run as well")
-            s.add_argument("--sb3-seeds", nargs="+", type=int, default=None, help="seeds of the SB3 runs (default: --seeds)")
+            s.add_argument(
+                "--sb3-seeds", nargs="+", type=int, default=None, help="seeds of the SB3 runs (default: --seeds)"
+            )
             s.add_argument("--tasks", nargs="+", choices=TASKS, default=["lift"])
             s.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
             s.add_argument("--cpus", type=int, default=None, help="local Ray CPUs (default: all); one per trial")
@@ -177,7 +254,9 @@ def main(argv: list[str] | None = None) -> None:
         s.add_argument("--eval-every", type=int, default=2000)
         s.add_argument("--eval-episodes", type=int, default=50)
         s.add_argument("--policy", default=None, help="EDP file (default: the shipped one)")
-        s.add_argument("--ent-init", type=float, default=None, help="initial entropy coefficient (default: the preset's)")
+        s.add_argument(
+            "--ent-init", type=float, default=None, help="initial entropy coefficient (default: the preset's)"
+        )
     r = sub.add_parser("report")
     r.add_argument("--runs", default="runs/sweep/rust", help="Rust runs")
     r.add_argument("--sb3-runs", default=None, help="SB3 runs to show beside them")
@@ -188,9 +267,23 @@ def main(argv: list[str] | None = None) -> None:
     elif a.cmd == "sweep":
         sweep(a)
     else:
-        s = run(a.method, a.task, a.seed, a.steps, a.out, threads=a.threads, preset=a.preset, joint_limits=not a.no_joint_limits,
-                controller=a.controller, eval_every=a.eval_every, eval_episodes=a.eval_episodes, policy=a.policy,
-                ent_init=a.ent_init, horizon=a.horizon, progress=not a.quiet)
+        s = run(
+            a.method,
+            a.task,
+            a.seed,
+            a.steps,
+            a.out,
+            threads=a.threads,
+            preset=a.preset,
+            joint_limits=not a.no_joint_limits,
+            controller=a.controller,
+            eval_every=a.eval_every,
+            eval_episodes=a.eval_episodes,
+            policy=a.policy,
+            ent_init=a.ent_init,
+            horizon=a.horizon,
+            progress=not a.quiet,
+        )
         print(json.dumps({k: v for k, v in s.items() if k != "rows"}, default=str))
 
 
