@@ -126,7 +126,7 @@ impl Env {
         let inner = &mut self.inner;
         let image = py.detach(|| inner.render(width, height)).map_err(to_py)?;
         let flat = image.data.into_pyarray(py);
-        Ok(flat.reshape([image.height, image.width, 3])?)
+        flat.reshape([image.height, image.width, 3])
     }
 
     #[getter]

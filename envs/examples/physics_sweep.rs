@@ -85,8 +85,8 @@ fn main() {
             let mut a = [0.0; 10];
             for t in 0..400 {
                 if t % 8 == 0 {
-                    for k in 0..3 {
-                        a[k] = rng.uniform(-1.2, 1.2);
+                    for v in a.iter_mut().take(3) {
+                        *v = rng.uniform(-1.2, 1.2);
                     }
                     if rng.uniform(0.0, 1.0) < 0.7 {
                         a[0] = rng.uniform(-0.35, 0.35);

@@ -106,8 +106,8 @@ fn carried_nut_stays_in_the_grasp_for_20_seconds() {
 
 fn random_target(env: &Env, rng: &mut EpisodeRng) -> [f64; 10] {
     let mut a = [0.0; 10];
-    for k in 0..3 {
-        a[k] = rng.uniform(-1.2, 1.2);
+    for v in a.iter_mut().take(3) {
+        *v = rng.uniform(-1.2, 1.2);
     }
     // Mostly near the table, often below its top.
     if rng.uniform(0.0, 1.0) < 0.7 {

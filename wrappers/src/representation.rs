@@ -85,7 +85,7 @@ impl Representation {
     /// Apply a different element to each row of a row-major batch.
     pub fn act_each(&self, elements: &[PlanarRotation], data: &mut [f64]) -> Result<()> {
         self.check_batch(data)?;
-        let rows = if self.dim == 0 { 0 } else { data.len() / self.dim };
+        let rows = data.len().checked_div(self.dim).unwrap_or(0);
         if elements.len() != rows {
             return Err(EnvError::WrongLength {
                 what: "group elements (one per row)".into(),

@@ -193,8 +193,8 @@ fn latent_vector_env_equals_single_envs_for_any_thread_count() {
                 assert_eq!(batch.obs(k).unwrap(), &obs[..], "threads {threads}, step {t}, env {k}");
             }
         }
-        for k in 0..n {
-            assert_eq!(batch.env(k).unwrap().env().get_state().unwrap(), final_states[k], "threads {threads}, env {k}");
+        for (k, want) in final_states.iter().enumerate().take(n) {
+            assert_eq!(&batch.env(k).unwrap().env().get_state().unwrap(), want, "threads {threads}, env {k}");
             assert!(batch.last_step(k).unwrap().truncated);
         }
         // The next step auto-resets every environment from its seed stream.

@@ -125,8 +125,8 @@ impl Waypoints {
     pub fn action(&mut self, rotation: &UnitQuaternion<f64>, width: f64) -> [f64; 10] {
         let mut a = [0.0; 10];
         let sigma = self.options.position_noise;
-        for k in 0..3 {
-            a[k] = self.commanded[k] + if sigma > 0.0 { sigma * self.rng.normal() } else { 0.0 };
+        for (ak, ck) in a.iter_mut().zip(self.commanded.iter()) {
+            *ak = ck + if sigma > 0.0 { sigma * self.rng.normal() } else { 0.0 };
         }
         a[3..9].copy_from_slice(&rot6d(rotation));
         a[9] = width;

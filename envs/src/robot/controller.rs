@@ -99,8 +99,8 @@ impl ArmController for JointSpace {
     fn plan(&mut self, ctx: &ControlContext, q_meas: &[f64], target: &Isometry3<f64>) -> IkReport {
         let fit = ctx.solve(target, &mut self.q_des);
         let n = q_meas.len();
-        for k in 0..n {
-            self.q_start[k] = self.q_end[k].clamp(q_meas[k] - MAX_JOINT_LEAD, q_meas[k] + MAX_JOINT_LEAD);
+        for ((start, end), meas) in self.q_start.iter_mut().zip(&self.q_end).zip(q_meas) {
+            *start = end.clamp(meas - MAX_JOINT_LEAD, meas + MAX_JOINT_LEAD);
         }
         let (t, dv) = (ctx.period, MAX_JOINT_ACCELERATION * ctx.period);
         for k in 0..n {
@@ -171,8 +171,8 @@ impl ArmController for Cartesian {
         self.tcp_start = approach(&now, &self.tcp_end, MAX_TCP_LEAD, MAX_TCP_LEAD_ANGLE);
         self.tcp_end =
             approach(&self.tcp_start, &reachable, MAX_TCP_SPEED * ctx.period, MAX_TCP_ANGULAR_SPEED * ctx.period);
-        for k in 0..q_meas.len() {
-            self.q_cmd[k] = self.q_cmd[k].clamp(q_meas[k] - MAX_JOINT_LEAD, q_meas[k] + MAX_JOINT_LEAD);
+        for (cmd, meas) in self.q_cmd.iter_mut().zip(q_meas) {
+            *cmd = cmd.clamp(meas - MAX_JOINT_LEAD, meas + MAX_JOINT_LEAD);
         }
         fit
     }

@@ -513,8 +513,8 @@ impl RobotRig {
             }
         }
         let fingers = self.finger_positions(world);
-        for k in 0..2 {
-            bounds.push((self.finger_dofs[k], fingers[k], model.fingers[k].lower, model.fingers[k].upper));
+        for ((dof, x), f) in self.finger_dofs.iter().zip(fingers).zip(&model.fingers) {
+            bounds.push((*dof, x, f.lower, f.upper));
         }
         if bounds.iter().all(|(_, x, lo, hi)| x >= lo && x <= hi) {
             return false;

@@ -214,7 +214,7 @@ pub fn parse_urdf(text: &str) -> Result<RobotModel> {
     let hand_children = &children[hand_name];
 
     let mut fingers = Vec::new();
-    for j in hand_children.iter().filter(|j| is_prismatic(&j)) {
+    for j in hand_children.iter().filter(is_prismatic) {
         let link = links[j.child.link.as_str()];
         if j.limit.lower.is_nan() || j.limit.upper.is_nan() || j.limit.lower > j.limit.upper {
             return Err(err(format!("finger joint '{}': limits are not an interval", j.name)));
