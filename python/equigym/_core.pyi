@@ -16,6 +16,8 @@ __all__ = [
     "LatentVecEnv",
     "VecEnv",
     "measure_symmetry_breaking",
+    "steer_run",
+    "steer_gradcase",
     "TASK_IDS",
     "__version__",
 ]
