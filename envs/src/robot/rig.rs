@@ -342,11 +342,6 @@ impl RobotRig {
         self.model.dof()
     }
 
-    /// Whether the joint limits are enforced.
-    pub fn joint_limits(&self) -> bool {
-        self.joint_limits
-    }
-
     /// Clamp joints into the limits (when they apply).
     pub fn clamp_to_limits(&self, q: &mut [f64]) {
         if self.joint_limits {
@@ -388,12 +383,6 @@ impl RobotRig {
     /// Travel of each finger (half the opening each).
     pub fn finger_positions(&self, world: &PhysicsWorld) -> [f64; 2] {
         [self.coordinate(world, self.finger_joints[0], false), self.coordinate(world, self.finger_joints[1], false)]
-    }
-
-    /// Finger speeds along their axes (m/s).
-    pub fn finger_velocities(&self, world: &PhysicsWorld) -> [f64; 2] {
-        let v = self.multibody(world).generalized_velocity();
-        [v[self.finger_dofs[0]] as f64, v[self.finger_dofs[1]] as f64]
     }
 
     /// World pose of the hand link, from its body.
