@@ -103,13 +103,32 @@ impl ArmController for JointSpace {
             *start = end.clamp(meas - MAX_JOINT_LEAD, meas + MAX_JOINT_LEAD);
         }
         let (t, dv) = (ctx.period, MAX_JOINT_ACCELERATION * ctx.period);
+        // One speed profile for all joints (scaled to the joint that needs it slowest), so the
+        // commanded joints move along the straight line towards the solution and the TCP stays
+        // close to the commanded path. Shaped joint by joint, joints with short ways arrived
+        // early and the hand drifted up to 25 mm sideways while descending onto an object.
+        let mut scale = 1.0f64;
         for k in 0..n {
-            let v_max = JOINT_SPEED_FRACTION * ctx.model.joints[k].max_velocity;
             let err = self.q_des[k] - self.q_start[k];
+            let wanted = (err / t).abs();
             // The fastest speed from which the joint can still stop at the target.
             let v_stop = (2.0 * MAX_JOINT_ACCELERATION * err.abs()).sqrt();
-            let v_goal = (err / t).clamp(-v_stop, v_stop).clamp(-v_max, v_max);
-            let mut v = self.qd_cmd[k] + (v_goal - self.qd_cmd[k]).clamp(-dv, dv);
+            let v_max = (JOINT_SPEED_FRACTION * ctx.model.joints[k].max_velocity).min(v_stop);
+            if wanted > v_max {
+                scale = scale.min(v_max / wanted);
+            }
+        }
+        let mut accel_scale = 1.0f64;
+        for k in 0..n {
+            let change = ((self.q_des[k] - self.q_start[k]) / t * scale - self.qd_cmd[k]).abs();
+            if change > dv {
+                accel_scale = accel_scale.min(dv / change);
+            }
+        }
+        for k in 0..n {
+            let err = self.q_des[k] - self.q_start[k];
+            let v_goal = err / t * scale;
+            let mut v = self.qd_cmd[k] + (v_goal - self.qd_cmd[k]) * accel_scale;
             if (v * t).abs() >= err.abs() && v * err >= 0.0 {
                 v = err / t;
             }
