@@ -15,10 +15,9 @@ use rapier3d::prelude::ColliderHandle;
 const HOLD_STEPS: usize = 400;
 /// Largest slip of a held object relative to the hand over the hold (m).
 const MAX_HOLD_SLIP: f64 = 0.002;
-/// Deepest an object may be pushed into the table (m). The goal is 3 mm; under adversarial
-/// targets an arm crushing a cube onto the table still reaches 3.6-4.8 mm in the worst of
-/// 60 episodes (`examples/physics_sweep.rs` has the settings tried).
-const MAX_OBJECT_DEPTH: f64 = 0.005;
+/// Deepest an object may be pushed into the table (m); `examples/depth_probe.rs` has the solver
+/// settings tried.
+const MAX_OBJECT_DEPTH: f64 = 0.003;
 /// Deepest any robot collider may be in the table or an object (m).
 const MAX_ROBOT_DEPTH: f64 = 0.005;
 /// Tolerance on joint position limits (rad) and finger travel (m): rapier's limit constraints

@@ -1,0 +1,108 @@
+//! How deep task objects get pushed into the table under adversarial targets, per task, for a
+//! choice of solver settings: the same random targets as `tests/physics.rs` (uniform absolute
+//! targets, mostly near the table and often below it, random widths), and what of the robot
+//! touches the object at the deepest moment, and the deepest any robot collider gets into the
+//! table or an object. Used to choose `tasks::common::OBJECT_EXTRA_SOLVER_ITERATIONS`.
+//!
+//! `cargo run --release -p equigym-envs --example depth_probe -- [episodes] [stabilisation iterations] [extra object iterations] [extra robot iterations]`
+//!
+//! Defaults: 40 episodes per task, rapier's one stabilisation iteration, the shipped extra
+//! object iterations, no extra robot iterations.
+
+use std::time::Instant;
+
+use equigym_envs::rng::EpisodeRng;
+use equigym_envs::tasks::common::OBJECT_EXTRA_SOLVER_ITERATIONS;
+use equigym_envs::world::deepest_penetration;
+use equigym_envs::{Env, EnvConfig};
+
+fn arg(k: usize, default: usize) -> usize {
+    std::env::args().nth(k).and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
+/// A uniformly random absolute target (mostly near the table, often below it) and width, drawn
+/// as `tests/physics.rs` draws them.
+fn random_target(rng: &mut EpisodeRng, top: f64) -> [f64; 10] {
+    let mut a = [0.0; 10];
+    for v in a.iter_mut().take(3) {
+        *v = rng.uniform(-1.2, 1.2);
+    }
+    if rng.uniform(0.0, 1.0) < 0.7 {
+        a[0] = rng.uniform(-0.35, 0.35);
+        a[1] = rng.uniform(-0.35, 0.35);
+        a[2] = top + rng.uniform(-0.15, 0.2);
+    }
+    for v in a.iter_mut().take(9).skip(3) {
+        *v = rng.normal();
+    }
+    a[9] = rng.uniform(-0.05, 0.15);
+    a
+}
+
+fn main() {
+    let episodes = arg(1, 40) as u64;
+    let stabilization = arg(2, rapier3d::prelude::IntegrationParameters::default().num_internal_stabilization_iterations);
+    let extra = arg(3, OBJECT_EXTRA_SOLVER_ITERATIONS);
+    let robot_extra = arg(4, 0);
+    println!("stabilization iterations {stabilization}, extra object iterations {extra}, {episodes} episodes per task");
+    let mut rng = EpisodeRng::from_seed(4242);
+    for task in ["lift", "stack", "square"] {
+        let mut env = Env::new(EnvConfig::new(task)).unwrap();
+        let start = Instant::now();
+        // (depth, episode, step, deepest robot contact with an object at that moment)
+        let mut worst = (0.0f64, 0u64, 0usize, 0.0f64);
+        // (depth of a robot collider in the table or an object, episode, step, in the table?)
+        let mut worst_robot = (0.0f64, 0u64, 0usize, false);
+        for episode in 0..episodes {
+            env.reset(1000 + episode).unwrap();
+            let bodies: Vec<_> = env.task().objects().iter().map(|o| o.body).collect();
+            let links: Vec<_> = env.scene().rig.moving_bodies().collect();
+            let world = &mut env.scene_mut().world;
+            world.integration_parameters.num_internal_stabilization_iterations = stabilization;
+            if robot_extra > 0 {
+                for b in links {
+                    world.bodies[b].set_additional_solver_iterations(robot_extra);
+                }
+            }
+            if extra != OBJECT_EXTRA_SOLVER_ITERATIONS {
+                for b in bodies {
+                    world.bodies[b].set_additional_solver_iterations(extra);
+                }
+            }
+            let objects: Vec<_> = env.task().objects().iter().flat_map(|o| o.colliders.clone()).collect();
+            let table = env.scene().statics.table;
+            let top = env.task().scene_spec().table.top;
+            let mut a = random_target(&mut rng, top);
+            for t in 0..400 {
+                if t % 8 == 0 {
+                    a = random_target(&mut rng, top);
+                }
+                env.step(&a).unwrap();
+                let scene = env.scene();
+                let depth = deepest_penetration(&scene.world, objects.iter().copied(), &[table]);
+                let in_objects = deepest_penetration(&scene.world, scene.rig.colliders(), &objects);
+                let in_table = deepest_penetration(&scene.world, scene.rig.colliders(), &[table]);
+                if in_objects.max(in_table) > worst_robot.0 {
+                    worst_robot = (in_objects.max(in_table), episode, t, in_table > in_objects);
+                }
+                if depth > worst.0 {
+                    let pressed = deepest_penetration(&scene.world, scene.rig.colliders(), &objects);
+                    worst = (depth, episode, t, pressed);
+                }
+            }
+        }
+        println!(
+            "{task:>6}: deepest object {:.2} mm into the table (episode {}, step {}; robot {:.2} mm into an object then); \
+             deepest robot {:.2} mm into {} (episode {}, step {}); {:.0} steps/s",
+            worst.0 * 1e3,
+            worst.1,
+            worst.2,
+            worst.3 * 1e3,
+            worst_robot.0 * 1e3,
+            if worst_robot.3 { "the table" } else { "an object" },
+            worst_robot.1,
+            worst_robot.2,
+            (episodes * 400) as f64 / start.elapsed().as_secs_f64()
+        );
+    }
+}
