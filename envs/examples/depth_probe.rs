@@ -41,7 +41,8 @@ fn random_target(rng: &mut EpisodeRng, top: f64) -> [f64; 10] {
 
 fn main() {
     let episodes = arg(1, 40) as u64;
-    let stabilization = arg(2, rapier3d::prelude::IntegrationParameters::default().num_internal_stabilization_iterations);
+    let stabilization =
+        arg(2, rapier3d::prelude::IntegrationParameters::default().num_internal_stabilization_iterations);
     let extra = arg(3, OBJECT_EXTRA_SOLVER_ITERATIONS);
     let robot_extra = arg(4, 0);
     println!("stabilization iterations {stabilization}, extra object iterations {extra}, {episodes} episodes per task");
