@@ -16,27 +16,11 @@ use equigym_envs::tasks::common::OBJECT_EXTRA_SOLVER_ITERATIONS;
 use equigym_envs::world::deepest_penetration;
 use equigym_envs::{Env, EnvConfig};
 
+mod shared;
+use shared::adversarial::random_target;
+
 fn arg(k: usize, default: usize) -> usize {
     std::env::args().nth(k).and_then(|v| v.parse().ok()).unwrap_or(default)
-}
-
-/// A uniformly random absolute target (mostly near the table, often below it) and width, drawn
-/// as `tests/physics.rs` draws them.
-fn random_target(rng: &mut EpisodeRng, top: f64) -> [f64; 10] {
-    let mut a = [0.0; 10];
-    for v in a.iter_mut().take(3) {
-        *v = rng.uniform(-1.2, 1.2);
-    }
-    if rng.uniform(0.0, 1.0) < 0.7 {
-        a[0] = rng.uniform(-0.35, 0.35);
-        a[1] = rng.uniform(-0.35, 0.35);
-        a[2] = top + rng.uniform(-0.15, 0.2);
-    }
-    for v in a.iter_mut().take(9).skip(3) {
-        *v = rng.normal();
-    }
-    a[9] = rng.uniform(-0.05, 0.15);
-    a
 }
 
 fn main() {

@@ -14,6 +14,9 @@ use equigym_envs::world::deepest_penetration;
 use equigym_envs::{Env, EnvConfig};
 use rapier3d::prelude::ColliderHandle;
 
+mod shared;
+use shared::adversarial::random_target;
+
 struct Setting {
     name: &'static str,
     iterations: usize,
@@ -85,18 +88,7 @@ fn main() {
             let mut a = [0.0; 10];
             for t in 0..400 {
                 if t % 8 == 0 {
-                    for v in a.iter_mut().take(3) {
-                        *v = rng.uniform(-1.2, 1.2);
-                    }
-                    if rng.uniform(0.0, 1.0) < 0.7 {
-                        a[0] = rng.uniform(-0.35, 0.35);
-                        a[1] = rng.uniform(-0.35, 0.35);
-                        a[2] = top + rng.uniform(-0.15, 0.2);
-                    }
-                    for v in a.iter_mut().take(9).skip(3) {
-                        *v = rng.normal();
-                    }
-                    a[9] = rng.uniform(-0.05, 0.15);
+                    a = random_target(&mut rng, top);
                 }
                 env.step(&a).unwrap();
                 steps += 1;

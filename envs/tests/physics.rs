@@ -11,6 +11,10 @@ use equigym_envs::{Env, EnvConfig};
 use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
 use rapier3d::prelude::ColliderHandle;
 
+#[path = "../examples/shared/adversarial.rs"]
+mod adversarial;
+use adversarial::random_target;
+
 /// Control steps in 20 s at 20 Hz.
 const HOLD_STEPS: usize = 400;
 /// Largest slip of a held object relative to the hand over the hold (m).
@@ -103,24 +107,6 @@ fn carried_nut_stays_in_the_grasp_for_20_seconds() {
     assert!(held * 20 >= tried * 19, "only {held}/{tried} nut holds slipped less than 2 mm");
 }
 
-fn random_target(env: &Env, rng: &mut EpisodeRng) -> [f64; 10] {
-    let mut a = [0.0; 10];
-    for v in a.iter_mut().take(3) {
-        *v = rng.uniform(-1.2, 1.2);
-    }
-    // Mostly near the table, often below its top.
-    if rng.uniform(0.0, 1.0) < 0.7 {
-        a[0] = rng.uniform(-0.35, 0.35);
-        a[1] = rng.uniform(-0.35, 0.35);
-        a[2] = env.task().scene_spec().table.top + rng.uniform(-0.15, 0.2);
-    }
-    for v in a.iter_mut().take(9).skip(3) {
-        *v = rng.normal();
-    }
-    a[9] = rng.uniform(-0.05, 0.15);
-    a
-}
-
 #[test]
 fn adversarial_targets_never_push_anything_through_anything() {
     let mut rng = EpisodeRng::from_seed(4242);
@@ -134,11 +120,11 @@ fn adversarial_targets_never_push_anything_through_anything() {
             let objects: Vec<ColliderHandle> = env.task().objects().iter().flat_map(|o| o.colliders.clone()).collect();
             let table = env.scene().statics.table;
             let mut q_prev = env.scene().joint_positions();
-            let mut a = random_target(&env, &mut rng);
+            let mut a = random_target(&mut rng, env.task().scene_spec().table.top);
             for t in 0..400 {
                 // Hold each random target for a few steps so the arm gets there and presses.
                 if t % 8 == 0 {
-                    a = random_target(&env, &mut rng);
+                    a = random_target(&mut rng, env.task().scene_spec().table.top);
                 }
                 env.step(&a).unwrap();
                 assert!(env.observe().iter().all(|v| v.is_finite()), "{task} episode {episode} step {t}: NaN");
