@@ -220,9 +220,33 @@ def chunk_dataset(demos: list[dict[str, Any]], chunk_len: int) -> tuple[np.ndarr
 
 
 # -- training ------------------------------------------------------------------------------
+def _demo_digest(path: str | Path) -> str:
+    """Content hash of the demo file: a checkpoint resumes only on the data it was trained on."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
 def train(
-    cfg: EDPConfig, demo_path: str | Path, out: str | Path, progress: bool = True, threads: int = 1
+    cfg: EDPConfig,
+    demo_path: str | Path,
+    out: str | Path,
+    progress: bool = True,
+    threads: int = 1,
+    resume: bool = True,
+    checkpoint_every: int = 1000,
+    stop_after: int | None = None,
 ) -> dict[str, Any]:
+    """Train and export. Every 1000 steps the full training state (weights, EMA, AdamW and
+    scheduler state, torch RNG, loss history) goes to ``<out>.ckpt``; with ``resume`` a
+    checkpoint of the same config and demo file is continued, and the resumed run ends with
+    bitwise the weights of an uninterrupted one (single thread, same machine). ``stop_after``
+    ends this call after that many steps, checkpointed, without exporting (for time-limited
+    jobs); it returns ``{"stopped_at": step}``."""
     # Small networks: one thread is fastest, and several OpenMP threads on a loaded machine
     # spin-wait each other into a crawl.
     torch.set_num_threads(threads)
@@ -252,13 +276,30 @@ def train(
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     log_path = out.with_suffix(".loss.csv")
-    losses = []
+    ckpt_path = out.with_suffix(".ckpt")
+    digest = _demo_digest(demo_path)
+    losses: list[float] = []
+    start = 0
+    seconds_before = 0.0
+    if resume and ckpt_path.exists():
+        ckpt = torch.load(ckpt_path, weights_only=False)
+        if ckpt.get("config") == asdict(cfg) and ckpt.get("demos_sha256") == digest and "opt" in ckpt:
+            net.load_state_dict(ckpt["net"])
+            ema.load_state_dict(ckpt["ema"])
+            opt.load_state_dict(ckpt["opt"])
+            sched.load_state_dict(ckpt["sched"])
+            torch.set_rng_state(ckpt["rng"])
+            losses = list(ckpt["losses"])
+            start = int(ckpt["step"])
+            seconds_before = float(ckpt.get("seconds", 0.0))
+            if progress:
+                print(f"resuming {ckpt_path} at step {start}")
     try:
         from tqdm import trange
 
-        steps = trange(cfg.steps, desc=f"EDP {cfg.task}", disable=not progress)
+        steps = trange(start, cfg.steps, desc=f"EDP {cfg.task}", disable=not progress)
     except ImportError:  # pragma: no cover
-        steps = range(cfg.steps)
+        steps = range(start, cfg.steps)
     t0 = time.time()
     for step in steps:
         idx = torch.randint(0, n, (min(cfg.batch_size, max(n, 1) * 4),))
@@ -279,12 +320,25 @@ def train(
         losses.append(float(loss))
         if hasattr(steps, "set_postfix") and step % 50 == 0:
             steps.set_postfix(loss=f"{np.mean(losses[-50:]):.4f}")
-        if (step + 1) % 1000 == 0 or step + 1 == cfg.steps:
-            torch.save(
-                {"config": asdict(cfg), "net": net.state_dict(), "ema": ema.state_dict(), "step": step + 1},
-                out.with_suffix(".ckpt"),
-            )
-    seconds = time.time() - t0
+        stopping = stop_after is not None and step + 1 - start >= stop_after
+        if (step + 1) % checkpoint_every == 0 or step + 1 == cfg.steps or stopping:
+            state = {
+                "config": asdict(cfg),
+                "demos_sha256": digest,
+                "net": net.state_dict(),
+                "ema": ema.state_dict(),
+                "opt": opt.state_dict(),
+                "sched": sched.state_dict(),
+                "rng": torch.get_rng_state(),
+                "losses": losses,
+                "step": step + 1,
+                "seconds": seconds_before + time.time() - t0,
+            }
+            torch.save(state, ckpt_path.with_suffix(".ckpt.tmp"))
+            os.replace(ckpt_path.with_suffix(".ckpt.tmp"), ckpt_path)
+        if stopping and step + 1 < cfg.steps:
+            return {"stopped_at": step + 1}
+    seconds = seconds_before + time.time() - t0
     with open(log_path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["step", "loss"])
@@ -544,6 +598,7 @@ def main(argv: list[str] | None = None) -> None:
     t.add_argument("--batch-size", type=int, default=EDPConfig.batch_size)
     t.add_argument("--lr", type=float, default=EDPConfig.lr)
     t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--fresh", action="store_true", help="ignore a matching <out>.ckpt instead of resuming it")
     e = sub.add_parser("eval", help="success rate of the base policy (w ~ N(0, I)) in the latent env")
     e.add_argument("--policy", required=True)
     e.add_argument("--episodes", type=int, default=100)
@@ -576,7 +631,7 @@ def main(argv: list[str] | None = None) -> None:
             lr=a.lr,
             seed=a.seed,
         )
-        print(json.dumps(train(cfg, a.demos, a.out)))
+        print(json.dumps(train(cfg, a.demos, a.out, resume=not a.fresh)))
 
 
 if __name__ == "__main__":

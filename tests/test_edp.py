@@ -35,6 +35,27 @@ def tiny_policy(lift_demos, tmp_path_factory):
     return out
 
 
+def test_killed_training_resumes_bitwise_from_its_checkpoint(lift_demos, tmp_path):
+    cfg = dict(steps=12, hidden_fields=2, hidden_layers=1, batch_size=16)
+    whole, parts = tmp_path / "whole.safetensors", tmp_path / "parts.safetensors"
+    train(EDPConfig(**cfg), lift_demos, whole, progress=False, checkpoint_every=4)
+    # Stopped after 5 steps (mid-interval, checkpointed there), then resumed to the end.
+    assert train(EDPConfig(**cfg), lift_demos, parts, progress=False, checkpoint_every=4, stop_after=5) == {
+        "stopped_at": 5
+    }
+    assert not parts.exists()
+    train(EDPConfig(**cfg), lift_demos, parts, progress=False, checkpoint_every=4)
+    a = torch.load(whole.with_suffix(".ckpt"), weights_only=False)
+    b = torch.load(parts.with_suffix(".ckpt"), weights_only=False)
+    assert a["step"] == b["step"] == 12 and a["losses"] == b["losses"]
+    for k in a["ema"]:
+        assert torch.equal(a["ema"][k], b["ema"][k]), k
+    # A different config does not pick up the checkpoint: it starts from step 0.
+    other = EDPConfig(**{**cfg, "lr": 5e-4})
+    stopped = train(other, lift_demos, parts, progress=False, checkpoint_every=4, stop_after=2)
+    assert stopped == {"stopped_at": 2}
+
+
 def test_demos_use_robomimics_layout(lift_demos):
     with h5py.File(lift_demos) as f:
         env_args = json.loads(f["data"].attrs["env_args"])
