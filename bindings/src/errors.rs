@@ -18,6 +18,7 @@ pyo3::import_exception!(equigym.errors, ResetNeeded);
 pyo3::import_exception!(equigym.errors, PolicyError);
 pyo3::import_exception!(equigym.errors, MissingFileError);
 pyo3::import_exception!(equigym.errors, EquigymIOError);
+pyo3::import_exception!(equigym.errors, PhysicsError);
 
 /// `errno` of a missing file (POSIX `ENOENT`), for `FileNotFoundError`'s `errno` attribute.
 const ENOENT: i32 = 2;
@@ -71,6 +72,7 @@ pub(crate) fn to_py(e: impl Into<Error>) -> PyErr {
                 EnvError::FileNotFound { path, .. } => missing_file(message, path),
                 EnvError::InvalidState(_) => InvalidStateError::new_err(message),
                 EnvError::Io(_) => EquigymIOError::new_err(message),
+                EnvError::Physics(_) => PhysicsError::new_err(message),
             }
         }
         Error::Wrappers(e) => {

@@ -2,37 +2,38 @@
 //! choice of solver settings: the same random targets as `tests/physics.rs` (uniform absolute
 //! targets, mostly near the table and often below it, random widths), and what of the robot
 //! touches the object at the deepest moment, and the deepest any robot collider gets into the
-//! table or an object. Used to choose `tasks::common::OBJECT_EXTRA_SOLVER_ITERATIONS`.
+//! table or an object. Used to choose the solver settings of `PhysicsConfig`.
 //!
-//! `cargo run --release -p equigym-envs --example depth_probe -- [episodes] [stabilisation iterations] [extra object iterations] [extra robot iterations]`
+//! `cargo run --release -p equigym-envs --example depth_probe -- [episodes] [setting...]`
 //!
-//! Defaults: 40 episodes per task, rapier's one stabilisation iteration, the shipped extra
-//! object iterations, no extra robot iterations.
+//! Defaults: 40 episodes per task, the shipped setting. Settings as in `shared/settings.rs`,
+//! e.g. `it=2,pgs=3,osub=2,opgs=8`, or `stab=2` / `rsub=4` for a second stabilisation
+//! iteration / extra substeps on the robot.
 
 use std::time::Instant;
 
 use equigym_envs::rng::EpisodeRng;
-use equigym_envs::tasks::common::OBJECT_EXTRA_SOLVER_ITERATIONS;
 use equigym_envs::world::deepest_penetration;
 use equigym_envs::{Env, EnvConfig};
 
 mod shared;
 use shared::adversarial::random_target;
-
-fn arg(k: usize, default: usize) -> usize {
-    std::env::args().nth(k).and_then(|v| v.parse().ok()).unwrap_or(default)
-}
+use shared::settings::Setting;
 
 fn main() {
-    let episodes = arg(1, 40) as u64;
-    let stabilization =
-        arg(2, rapier3d::prelude::IntegrationParameters::default().num_internal_stabilization_iterations);
-    let extra = arg(3, OBJECT_EXTRA_SOLVER_ITERATIONS);
-    let robot_extra = arg(4, 0);
-    println!("stabilization iterations {stabilization}, extra object iterations {extra}, {episodes} episodes per task");
+    let episodes: u64 = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(40);
+    for setting in Setting::from_args(2) {
+        println!("setting `{}`, {episodes} episodes per task", setting.name);
+        probe(&setting, episodes);
+    }
+}
+
+fn probe(setting: &Setting, episodes: u64) {
     let mut rng = EpisodeRng::from_seed(4242);
     for task in ["lift", "stack", "square"] {
-        let mut env = Env::new(EnvConfig::new(task)).unwrap();
+        let mut config = EnvConfig::new(task);
+        config.physics = setting.physics.clone();
+        let mut env = Env::new(config).unwrap();
         let start = Instant::now();
         // (depth, episode, step, deepest robot contact with an object at that moment)
         let mut worst = (0.0f64, 0u64, 0usize, 0.0f64);
@@ -40,20 +41,7 @@ fn main() {
         let mut worst_robot = (0.0f64, 0u64, 0usize, false);
         for episode in 0..episodes {
             env.reset(1000 + episode).unwrap();
-            let bodies: Vec<_> = env.task().objects().iter().map(|o| o.body).collect();
-            let links: Vec<_> = env.scene().rig.moving_bodies().collect();
-            let world = &mut env.scene_mut().world;
-            world.integration_parameters.num_internal_stabilization_iterations = stabilization;
-            if robot_extra > 0 {
-                for b in links {
-                    world.bodies[b].set_additional_solver_iterations(robot_extra);
-                }
-            }
-            if extra != OBJECT_EXTRA_SOLVER_ITERATIONS {
-                for b in bodies {
-                    world.bodies[b].set_additional_solver_iterations(extra);
-                }
-            }
+            setting.apply(&mut env);
             let objects: Vec<_> = env.task().objects().iter().flat_map(|o| o.colliders.clone()).collect();
             let table = env.scene().statics.table;
             let top = env.task().scene_spec().table.top;

@@ -2,13 +2,18 @@
 //! failure statistics by initial object yaw and position (where the Panda's joint limits and
 //! reach break the task's rotational symmetry).
 //!
-//! `cargo run --release -p equigym-envs --example expert -- [task] [episodes] [image.png] [variant]`
+//! `cargo run --release -p equigym-envs --example expert -- [task] [episodes] [image.png] [variant] [setting]`
+//!
+//! `setting`: solver settings as in `shared/settings.rs` (default: the shipped ones).
 
 use std::time::Instant;
 
 use equigym_envs::experts::{make_expert, ExpertOptions};
 use equigym_envs::render::save_png;
 use equigym_envs::{Env, EnvConfig};
+
+mod shared;
+use shared::settings::Setting;
 
 struct Episode {
     success: bool,
@@ -45,7 +50,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let episodes: u64 = args.get(2).map(|s| s.parse()).transpose()?.unwrap_or(50);
     let image = args.get(3).filter(|s| !s.is_empty()).cloned();
     let mut config = EnvConfig::new(&task);
-    config.task_options.variant = args.get(4).cloned();
+    config.task_options.variant = args.get(4).cloned().filter(|v| !v.is_empty());
+    let setting = Setting::parse(args.get(5).map(String::as_str).unwrap_or(""))?;
+    config.physics = setting.physics.clone();
     let mut env = Env::new(config)?;
     let mut expert = make_expert(&task, ExpertOptions::default())?;
     let mut log = Vec::new();
@@ -53,6 +60,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let start = Instant::now();
     for seed in 0..episodes {
         env.reset(seed)?;
+        setting.apply(&mut env);
         expert.reset(&env, seed);
         let starts = env
             .task()

@@ -3,7 +3,9 @@
 //! finger passes its travel), the slip of a lifted cube held for 20 s, and control steps/s.
 //! Used to choose the defaults in `PhysicsConfig` and `world::build_world`.
 //!
-//! `cargo run --release -p equigym-envs --example physics_sweep -- [episodes]`
+//! `cargo run --release -p equigym-envs --example physics_sweep -- [episodes] [setting...]`
+//! e.g. `-- 4 "" it=2,pgs=3 osub=2,opgs=8` (settings as in `shared/settings.rs`; the empty
+//! one is the shipped setting).
 
 use std::time::Instant;
 
@@ -16,61 +18,18 @@ use rapier3d::prelude::ColliderHandle;
 
 mod shared;
 use shared::adversarial::random_target;
-
-struct Setting {
-    name: &'static str,
-    iterations: usize,
-    substeps: usize,
-    static_hz: f32,
-    contact_hz: f32,
-    armature: f64,
-}
-
-fn configure(env: &mut Env, s: &Setting) {
-    let ip = &mut env.scene_mut().world.integration_parameters;
-    ip.static_contact_softness.natural_frequency = s.static_hz;
-    ip.contact_softness.natural_frequency = s.contact_hz;
-}
+use shared::settings::Setting;
 
 fn config(s: &Setting, horizon: usize) -> EnvConfig {
     let mut cfg = EnvConfig::new("lift");
-    cfg.physics.solver_iterations = s.iterations;
-    cfg.physics.substeps = s.substeps;
-    cfg.physics.timestep = 0.05 / s.substeps as f64;
+    cfg.physics = s.physics.clone();
     cfg.horizon = Some(horizon);
-    cfg.physics.joint_armature = s.armature;
-    cfg.physics.finger_armature = s.armature;
     cfg
 }
 
 fn main() {
     let episodes: u64 = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(4);
-    let settings = [
-        Setting {
-            name: "contacts 240 / 960 Hz",
-            iterations: 4,
-            substeps: 12,
-            static_hz: 960.0,
-            contact_hz: 240.0,
-            armature: 0.1,
-        },
-        Setting {
-            name: "contacts 480 / 960 Hz",
-            iterations: 4,
-            substeps: 12,
-            static_hz: 960.0,
-            contact_hz: 480.0,
-            armature: 0.1,
-        },
-        Setting {
-            name: "contacts 480 / 1920 Hz",
-            iterations: 4,
-            substeps: 12,
-            static_hz: 1920.0,
-            contact_hz: 480.0,
-            armature: 0.1,
-        },
-    ];
+    let settings = Setting::from_args(2);
     println!("| setting | deepest robot (mm) | deepest object (mm) | finger past travel (mm) | 20 s hold slip, max (mm) | adversarial steps/s |");
     println!("|---|---|---|---|---|---|");
     for s in &settings {
@@ -81,7 +40,7 @@ fn main() {
         let t0 = Instant::now();
         for ep in 0..episodes {
             env.reset(1000 + ep).unwrap();
-            configure(&mut env, s);
+            s.apply(&mut env);
             let objects: Vec<ColliderHandle> = env.task().objects().iter().flat_map(|o| o.colliders.clone()).collect();
             let table = env.scene().statics.table;
             let top = env.task().scene_spec().table.top;
@@ -109,7 +68,7 @@ fn main() {
         let mut expert = make_expert("lift", ExpertOptions::default()).unwrap();
         for seed in 100..100 + episodes {
             env.reset(seed).unwrap();
-            configure(&mut env, s);
+            s.apply(&mut env);
             expert.reset(&env, seed);
             let mut action = env.current_target();
             let mut lifting = 0;
@@ -129,7 +88,7 @@ fn main() {
             slip = slip.max((rel(&env).translation.vector - start.translation.vector).norm());
         }
         println!(
-            "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} |",
+            "| `{}` | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} |",
             s.name,
             robot * 1e3,
             object * 1e3,

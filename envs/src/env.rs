@@ -80,6 +80,15 @@ fn state_checksum(bytes: &[u8]) -> u64 {
 }
 
 /// Bytes of a saved environment state (see [`Env::get_state`]): this, postcard-encoded, then
+/// The text of a caught panic's payload.
+fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "panic".into())
+}
+
 /// [`STATE_CHECKSUM_LEN`] bytes of [`state_checksum`].
 #[derive(Serialize, Deserialize)]
 struct SavedState {
@@ -276,7 +285,19 @@ impl Env {
         };
         self.last_target = a;
         let target = Isometry3::from_parts(Translation3::new(a[0], a[1], a[2]), rotation);
-        self.scene.control_step(&target, a[9] * 0.5);
+        // The physics engine trusts the worlds it steps. Worlds built here never make it panic;
+        // one restored from hand-made state bytes with a valid checksum can (`set_state` steps a
+        // copy first, but cannot prove every later step safe). A panic ends the episode with a
+        // typed error instead of unwinding into the caller; `reset` starts from the pristine
+        // world again.
+        let scene = &mut self.scene;
+        let gripper = a[9] * 0.5;
+        if let Err(panic) = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            scene.control_step(&target, gripper)
+        })) {
+            self.in_episode = false;
+            return Err(EnvError::Physics(panic_message(panic.as_ref())));
+        }
         self.steps += 1;
         let evaluation = self.task.evaluate(&self.scene);
         let reward = match self.config.reward {
@@ -363,6 +384,7 @@ impl Env {
                 self.task.id()
             )));
         }
+        Scene::trial_step(&saved.scene)?;
         let before = self.task.episode_params();
         self.task.set_episode_params(&mut self.scene, &saved.task_params)?;
         if let Err(e) = self.scene.restore(&saved.scene) {

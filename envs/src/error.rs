@@ -26,6 +26,10 @@ pub enum EnvError {
     /// A file that an option names does not exist (e.g. a URDF path).
     #[error("{what} {path}: no such file")]
     FileNotFound { what: String, path: String },
+    /// The physics engine failed inside a step (it can only meet a state it could not have
+    /// produced itself, e.g. from hand-made state bytes); the episode has ended.
+    #[error("physics engine failure ({0}); the episode has ended, call reset()")]
+    Physics(String),
     /// Writing an image failed.
     #[error("i/o error: {0}")]
     Io(String),

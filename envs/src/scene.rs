@@ -269,6 +269,18 @@ impl Scene {
         .map_err(|e| EnvError::InvalidState(format!("cannot serialise the scene: {e}")))
     }
 
+    /// Step a copy of the world in `bytes` (from [`Scene::save`]) once, to refuse a world the
+    /// physics engine cannot step before it replaces anything. rapier trusts its serialised
+    /// worlds: forged bytes with a valid checksum (`tests/fuzz.rs`) reached index and
+    /// assertion panics in its multibody code at the first step.
+    pub fn trial_step(bytes: &[u8]) -> Result<()> {
+        let state: SceneState =
+            postcard::from_bytes(bytes).map_err(|e| EnvError::InvalidState(format!("cannot decode the scene: {e}")))?;
+        let mut world = state.world;
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || world.step()))
+            .map_err(|_| EnvError::InvalidState("the physics engine cannot step this world".into()))
+    }
+
     /// Restore a state produced by [`Scene::save`] on a scene of the same task.
     pub fn restore(&mut self, bytes: &[u8]) -> Result<()> {
         let state: SceneState =

@@ -4,6 +4,16 @@
 //! The solver settings are chosen so that objects held by friction stay held
 //! (`envs/tests/physics.rs` measures a 20 s hold) and contacts stay shallow; what each setting
 //! buys and costs is written next to it.
+//!
+//! Substeps against PGS sweeps: rapier rebuilds and factorises the arm's 9-dof mass matrix
+//! before every solver substep (~60 % of a control step at 4 substeps, `benches/profile.sh`),
+//! while a PGS sweep inside a substep reuses it. The defaults (3 substeps of 2 sweeps; around
+//! objects 1 more substep and 8 more sweeps) keep the depths and holds of the earlier 4 substeps
+//! of 1 sweep with 8 more substeps around objects (`examples/depth_probe.rs`, 3 tasks x 20
+//! episodes: deepest object 1.7 / 2.7 / 0.5 mm against 2.1 / 1.5 / 2.5 mm, deepest robot
+//! collider 2.3 / 3.8 / 3.6 mm against 2.2 / 3.8 / 3.6 mm for lift / stack / square) at about
+//! 1.35x the adversarial steps/s (`examples/physics_sweep.rs`). Two substeps were faster again
+//! but let an arm link 22-30 mm into an object or the peg in a few episodes.
 
 use nalgebra::Isometry3;
 use rapier3d::prelude::*;
@@ -38,8 +48,19 @@ pub struct PhysicsConfig {
     pub timestep: f64,
     /// Physics steps per control step (control period = timestep * substeps; 20 Hz by default).
     pub substeps: usize,
-    /// Solver iterations per physics step.
+    /// Solver substeps per physics step (rapier's `num_solver_iterations`: each one solves
+    /// the velocity constraints and integrates positions at `timestep / solver_iterations`;
+    /// the arm's 9-dof mass matrix is rebuilt before each, see `benches/results/profile.md`).
     pub solver_iterations: usize,
+    /// PGS sweeps over the constraints inside each substep (rapier's
+    /// `num_internal_pgs_iterations`): cheap convergence without a mass-matrix rebuild.
+    pub pgs_iterations: usize,
+    /// Extra substeps for the island of a movable task object (only while something touches
+    /// it). A light object squeezed between the heavy arm and the table is a large mass ratio
+    /// for the iterative solver; see `tasks::common::add_boxes`.
+    pub object_extra_substeps: usize,
+    /// Extra PGS sweeps per substep for the island of a movable task object.
+    pub object_extra_pgs_iterations: usize,
     /// Friction coefficient of objects and table (finger pads get a multiple of it).
     pub friction: f64,
     /// Stiffness of the arm's joint position servos (N m / rad).
@@ -70,7 +91,10 @@ impl Default for PhysicsConfig {
         Self {
             timestep: 1.0 / 240.0,
             substeps: 12,
-            solver_iterations: 4,
+            solver_iterations: 3,
+            pgs_iterations: 2,
+            object_extra_substeps: 1,
+            object_extra_pgs_iterations: 8,
             friction: 1.0,
             joint_stiffness: 2000.0,
             joint_damping: 100.0,
@@ -120,6 +144,18 @@ impl PhysicsConfig {
                 "substeps must be in 1..=1000 and solver_iterations in 1..=100".into(),
             ));
         }
+        for (name, v) in [
+            ("pgs_iterations", self.pgs_iterations),
+            ("object_extra_substeps", self.object_extra_substeps),
+            ("object_extra_pgs_iterations", self.object_extra_pgs_iterations),
+        ] {
+            if v > 100 {
+                return Err(EnvError::InvalidConfig(format!("{name} must be at most 100, got {v}")));
+            }
+        }
+        if self.pgs_iterations == 0 {
+            return Err(EnvError::InvalidConfig("pgs_iterations must be at least 1".into()));
+        }
         Ok(())
     }
 }
@@ -152,6 +188,7 @@ pub fn build_world(config: &PhysicsConfig, table: &TableSpec) -> (PhysicsWorld, 
     let ip = &mut world.integration_parameters;
     ip.dt = config.timestep as f32;
     ip.num_solver_iterations = config.solver_iterations;
+    ip.num_internal_pgs_iterations = config.pgs_iterations;
     // A finger must not "hold" an object across a gap, which recycled contacts allow.
     ip.contact_recycling = false;
     // Solve friction in the biased (position-correcting) pass too. Without it, that pass moves

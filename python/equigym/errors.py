@@ -14,6 +14,7 @@ __all__ = [
     "InvalidInputError",
     "InvalidStateError",
     "MissingFileError",
+    "PhysicsError",
     "PolicyError",
     "ResetNeeded",
     "UrdfError",
@@ -38,6 +39,11 @@ class InvalidStateError(EquigymError, ValueError):
 
 class PolicyError(EquigymError, ValueError):
     """A diffusion-policy file is corrupt, truncated or does not fit the task."""
+
+
+class PhysicsError(EquigymError, RuntimeError):
+    """The physics engine failed inside a step (only reachable from hand-made state bytes);
+    the episode has ended and ``reset()`` starts a new one."""
 
 
 class ResetNeeded(EquigymError, RuntimeError):

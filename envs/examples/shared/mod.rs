@@ -1,1 +1,5 @@
+// Not every example uses every helper.
+#[allow(dead_code)]
 pub mod adversarial;
+#[allow(dead_code)]
+pub mod settings;

@@ -9,14 +9,6 @@ use crate::layout::{FieldKind, Layout};
 use crate::math::{from_pose, rot6d, to_pose};
 use crate::scene::{colour_code, Scene, GROUP_OBJECT, GROUP_STATIC};
 
-/// Solver iterations added for the islands a task object is in. A light object squeezed between
-/// the heavy arm and the table is a large mass ratio for the iterative solver: under the
-/// adversarial targets of `tests/physics.rs` (`examples/depth_probe.rs`, 3 tasks x 20 episodes
-/// x 400 steps) the deepest object went 4.3 mm into the table with 4 extra iterations and
-/// 2.5 mm with 8 (2.4 mm over 3 x 60 episodes), at about 10 % fewer steps/s. A second
-/// stabilisation iteration lowered object depths further but let a finger 8 mm into the peg.
-pub const OBJECT_EXTRA_SOLVER_ITERATIONS: usize = 8;
-
 /// Density of the task objects (wood-like, as robosuite's defaults).
 pub const OBJECT_DENSITY: f32 = 1000.0;
 
@@ -34,13 +26,19 @@ pub fn add_boxes(
     rgb: [u8; 3],
     fixed: bool,
 ) -> TaskObject {
-    // Extra solver iterations on objects converge the chain table - object - hand - arm when the
-    // arm crushes an object onto the table (4 iterations left a cube 3.6-4.8 mm deep under
-    // adversarial targets; the extra iterations only run while something touches the object).
+    // Extra solver work on objects converges the chain table - object - hand - arm when the arm
+    // crushes an object onto the table; it only runs while something touches the object. Under
+    // the adversarial targets of `tests/physics.rs` (`examples/depth_probe.rs`, 3 tasks x 20
+    // episodes x 400 steps), with 4 substeps of 1 sweep everywhere, the deepest object went
+    // 4.3 mm into the table with 4 extra substeps and 2.5 mm with 8; the shipped extra sweeps
+    // (`world` module docs) do as well for less. A second stabilisation iteration lowered
+    // object depths further but let a finger 8 mm into the peg.
     let builder = if fixed {
         RigidBodyBuilder::fixed()
     } else {
-        RigidBodyBuilder::dynamic().additional_solver_iterations(OBJECT_EXTRA_SOLVER_ITERATIONS)
+        RigidBodyBuilder::dynamic()
+            .additional_solver_iterations(scene.config.object_extra_substeps)
+            .additional_pgs_iterations(scene.config.object_extra_pgs_iterations)
     };
     let body = scene.world.insert_body(builder);
     let groups = if fixed {

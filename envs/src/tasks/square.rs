@@ -31,7 +31,8 @@ pub const NUT_HALF_HEIGHT: f64 = 0.01;
 /// Handle: from the ring's outer edge, 6 cm long along the nut's +x axis.
 pub const HANDLE_HALF: [f64; 3] = [0.03, 0.012, NUT_HALF_HEIGHT];
 pub const PEG_HALF: [f64; 3] = [0.016, 0.016, 0.1];
-const NUT_EXTRA_SOLVER_ITERATIONS: usize = 12;
+/// Substeps the nut's island gets beyond the other objects' extra substeps.
+const NUT_EXTRA_SUBSTEPS: usize = 4;
 
 /// Centre of the handle in the nut frame.
 pub fn handle_centre() -> Vector3<f64> {
@@ -114,7 +115,8 @@ impl Task for Square {
         let nut = common::add_boxes(scene, "nut", &parts, [150, 110, 40], false);
         // Extra solver iterations on the nut let the friction of a grasp on it converge: with
         // none the expert's grip does not lift it, with 4 it slips out of the hand more often.
-        scene.world.bodies[nut.body].set_additional_solver_iterations(NUT_EXTRA_SOLVER_ITERATIONS);
+        scene.world.bodies[nut.body]
+            .set_additional_solver_iterations(scene.config.object_extra_substeps + NUT_EXTRA_SUBSTEPS);
         let peg =
             common::add_boxes(scene, "peg", &[(Isometry3::identity(), Vector3::from(PEG_HALF))], [120, 120, 130], true);
         self.objects = vec![nut, peg];
