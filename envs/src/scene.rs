@@ -277,8 +277,18 @@ impl Scene {
         let state: SceneState =
             postcard::from_bytes(bytes).map_err(|e| EnvError::InvalidState(format!("cannot decode the scene: {e}")))?;
         let mut world = state.world;
-        std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || world.step()))
-            .map_err(|_| EnvError::InvalidState("the physics engine cannot step this world".into()))
+        if !world_is_finite(&world) {
+            return Err(EnvError::InvalidState("the state holds non-finite poses or velocities".into()));
+        }
+        let stepped = std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
+            world.step();
+            world_is_finite(&world) && world.quarantine().bodies().is_empty()
+        }));
+        match stepped {
+            Ok(true) => Ok(()),
+            Ok(false) => Err(EnvError::InvalidState("the state's world goes non-finite when stepped".into())),
+            Err(_) => Err(EnvError::InvalidState("the physics engine cannot step this world".into())),
+        }
     }
 
     /// Restore a state produced by [`Scene::save`] on a scene of the same task.
@@ -314,6 +324,13 @@ impl Scene {
         self.finger_cmd = finger_cmd;
         Ok(())
     }
+}
+
+/// Whether every body's pose and velocity and every collider's pose in `world` is finite.
+fn world_is_finite(world: &PhysicsWorld) -> bool {
+    let pose_ok = |p: &Pose| p.translation.is_finite() && p.rotation.is_finite();
+    world.bodies.iter().all(|(_, b)| pose_ok(b.position()) && b.linvel().is_finite() && b.angvel().is_finite())
+        && world.colliders.iter().all(|(_, c)| pose_ok(c.position()))
 }
 
 /// The 6 x dof geometric Jacobian of the TCP (rows: linear, angular velocity).
