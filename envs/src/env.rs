@@ -292,9 +292,9 @@ impl Env {
         // world again.
         let scene = &mut self.scene;
         let gripper = a[9] * 0.5;
-        if let Err(panic) = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            scene.control_step(&target, gripper)
-        })) {
+        if let Err(panic) =
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| scene.control_step(&target, gripper)))
+        {
             self.in_episode = false;
             return Err(EnvError::Physics(panic_message(panic.as_ref())));
         }

@@ -32,33 +32,49 @@ SETTINGS: list[tuple[str, str | None]] = [
 ]
 
 
+def _measure(job: tuple[str, str | None, bool, bool, int, int]) -> dict[str, Any]:
+    task, variant, limits, cartesian, episodes, group_order = job
+    t0 = time.perf_counter()
+    report = measure_breaking(
+        task,
+        variant=variant,
+        joint_limits=limits,
+        cartesian_control=cartesian,
+        episodes=episodes,
+        group_order=group_order,
+    )
+    report["seconds"] = time.perf_counter() - t0
+    return report
+
+
 def run(
-    settings: list[tuple[str, str | None]], episodes: int, group_order: int, progress: bool = True
+    settings: list[tuple[str, str | None]],
+    episodes: int,
+    group_order: int,
+    progress: bool = True,
+    workers: int = 1,
 ) -> list[dict[str, Any]]:
-    reports = []
+    """One report per setting and (joint limits, controller) mode, in a fixed order; with
+    ``workers`` > 1 the settings run in that many processes (each measurement is seeded and
+    single-threaded, so the reports do not depend on ``workers``)."""
     # (joint limits, Cartesian control): the shipped setting, limits off, and each with the
     # Cartesian controller, which separates the joint limits from joint-space interpolation.
     modes = [(True, False), (False, False), (True, True), (False, True)]
-    jobs = [(t, v, lim, cart) for t, v in settings for lim, cart in modes]
+    jobs = [(t, v, lim, cart, episodes, group_order) for t, v in settings for lim, cart in modes]
     try:
         from tqdm import tqdm
+    except ImportError:  # pragma: no cover
+        tqdm = None
+    if workers <= 1:
+        iterator = tqdm(jobs, desc="symmetry breaking", disable=not progress) if tqdm else jobs
+        return [_measure(job) for job in iterator]
+    from concurrent.futures import ProcessPoolExecutor
 
-        iterator = tqdm(jobs, desc="symmetry breaking", disable=not progress)
-    except ImportError:
-        iterator = jobs
-    for task, variant, limits, cartesian in iterator:
-        t0 = time.perf_counter()
-        report = measure_breaking(
-            task,
-            variant=variant,
-            joint_limits=limits,
-            cartesian_control=cartesian,
-            episodes=episodes,
-            group_order=group_order,
-        )
-        report["seconds"] = time.perf_counter() - t0
-        reports.append(report)
-    return reports
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        results = pool.map(_measure, jobs)
+        if tqdm:
+            results = tqdm(results, total=len(jobs), desc="symmetry breaking", disable=not progress)
+        return list(results)
 
 
 def _fmt(x: float, spec: str) -> str:
@@ -154,12 +170,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--group-order", type=int, default=8)
     parser.add_argument("--quick", action="store_true", help="Lift only, 3 episodes (a smoke run)")
     parser.add_argument("--no-plot", action="store_true")
+    parser.add_argument("--workers", type=int, default=1, help="settings measured in parallel processes")
     args = parser.parse_args(argv)
     settings = [("lift", None)] if args.quick else SETTINGS
     episodes = 3 if args.quick else args.episodes
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    reports = run(settings, episodes, args.group_order)
+    reports = run(settings, episodes, args.group_order, workers=args.workers)
     command = "python -m equigym.symmetry_report" + (" --quick" if args.quick else f" --episodes {episodes}")
     (out / "breaking.json").write_text(json.dumps(reports, indent=1))
     (out / "breaking.md").write_text(markdown(reports, command))
