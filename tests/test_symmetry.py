@@ -5,7 +5,6 @@ import gymnasium
 import numpy as np
 import pytest
 
-import equigym
 from equigym import Symmetry, SymmetryWrapper
 from equigym.augment import augment_demonstration, rotate_batch
 from equigym.symmetry import measure_breaking, summarize
@@ -119,33 +118,6 @@ def test_rotated_state_observes_as_rotated_observation(task, env_id):
         )
 
 
-@pytest.mark.skip(
-    reason="articulated arm: the joint servos' lag depends on the arm configuration, so a rotated scene moves the hand centimetres differently in one step even without joint limits; the breaking measurement is to be redone on this physics (see wrappers/tests/state.rs)"
-)
-def test_transition_equivariance_without_joint_limits():
-    env = gymnasium.make("EquiLift-v0", joint_limits=False, controller="cartesian").unwrapped
-    sym = Symmetry("lift")
-    expert = equigym.Expert("lift")
-    env.reset(seed=2)
-    expert.reset(env.core, 2)
-    for t in range(30):
-        a = expert.act(env.core)
-        if t % 10 == 5:
-            s = env.get_state()
-            next_obs = env.step(a)[0].astype(np.float64)
-            after = env.get_state()
-            for g in sym.elements:
-                env.set_state(s)
-                sym.transform_state(env, g)
-                rotated = env.step(sym.act_action(a, g=g))[0].astype(np.float64)
-                expected = sym.act_observation(next_obs, g=g)
-                # Positions to a millimetre: the f32 contact solver is the only asymmetry left.
-                np.testing.assert_allclose(rotated[:3], expected[:3], atol=1e-3)
-            env.set_state(after)
-        else:
-            env.step(a)
-
-
 def test_wrapper_exposes_the_group_and_rotates_the_state():
     env = SymmetryWrapper(gymnasium.make("EquiSquare-v0", action_mode="normalized"))
     assert env.group == "C8" and env.group_order == 8
@@ -212,17 +184,19 @@ def test_symmetric_replay_buffer():
     np.testing.assert_array_equal(moved, g != 0)
 
 
-@pytest.mark.skip(
-    reason="articulated arm: the joint servos' lag depends on the arm configuration, so a rotated scene moves the hand centimetres differently in one step even without joint limits; the breaking measurement is to be redone on this physics (see wrappers/tests/state.rs)"
-)
-def test_breaking_measurement_reports_joint_limit_effects():
-    on = measure_breaking("lift", episodes=3, states_per_episode=2)
-    off = measure_breaking("lift", episodes=3, states_per_episode=2, joint_limits=False, cartesian_control=True)
+def test_joint_limits_make_rotated_lift_demos_fail():
+    """The paper's point on the articulated arm: replayed open loop after rotating the scene,
+    every Lift demo still succeeds without joint limits, while with them the demos turned by
+    225 deg (the wrist and shoulder at their limits) fail often (docs/symmetry/breaking.md:
+    0.65 vs 1.00 over 20 episodes). The one-step transition errors are dominated by the arm's
+    configuration-dependent servo dynamics, limits or not, so they are not what this asserts."""
+    on = measure_breaking("lift", episodes=10, states_per_episode=1)
+    off = measure_breaking("lift", episodes=10, states_per_episode=1, joint_limits=False)
     assert [r["element"] for r in on["invariance"]] == list(range(8))
-    assert on["invariance"][0]["observation_error_max"] < 2e-3  # the joint controller's IK floor
-    s_on, s_off = summarize(on), summarize(off)
-    assert s_off["unreachable"] == 0.0
-    assert s_on["unreachable"] > 0.0
-    assert s_off["hand_error_mm"] * 5 < s_on["hand_error_mm"]
+    rate = {name: [r["successes"] / r["demos"] for r in rep["replay"]] for name, rep in (("on", on), ("off", off))}
+    assert rate["on"][0] == rate["off"][0] == 1.0, "the identity replay reproduces the demos"
+    assert min(rate["off"]) == 1.0, rate["off"]
+    assert rate["on"][5] <= 0.8, rate["on"]  # 225 deg
+    assert summarize(on)["rotated_replay_success"] < summarize(off)["rotated_replay_success"]
     with pytest.raises(ValueError):
         measure_breaking("lift", episodes=0)
