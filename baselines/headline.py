@@ -1,18 +1,24 @@
 """The headline experience: steer the shipped Lift EDP with Equi-DSRL for a few minutes and show
 what steering did (the README's main job).
 
-    python -m baselines.headline                       # 2 seeds x 10k env steps, ~10 min on 2 cores
+    python -m baselines.headline                       # 2 seeds x 10k env steps, Rust agents
     python -m baselines.headline --steps 40000 --seeds 0 1 2 --methods equi dsrl
+    python -m baselines.headline --agents sb3          # the same runs with the SB3 + escnn agents
 
 It measures the base policy alone (latent noise N(0, I)), runs the steering agents (resumable:
 a second call continues where the first stopped), prints the before/after table and writes
 ``<out>/report/table.md`` and ``<out>/report/lift.png`` (success rate and mean Q vs env steps).
+
+The Rust agents (``equigym.steer``) are the default: they give the same log on every machine
+and thread count, where the SB3 runs differ from one CPU to another. Each run is one thread;
+``--workers`` runs that many at once (the Rust runs release the GIL, so threads suffice).
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -21,8 +27,8 @@ from baselines import steer
 from baselines.report import LABELS, write_report
 
 
-def summary(out: Path, task: str, methods: list[str], base: float) -> str:
-    rows = [f"{'':22s} {'success':>8s}", f"{'before (base EDP)':22s} {base:8.2f}"]
+def summary(out: Path, task: str, methods: list[str], base: float, agents: str = "rust") -> str:
+    rows = [f"{'':30s} {'success':>8s}", f"{'before (base EDP)':30s} {base:8.2f}"]
     for m in methods:
         finals, peaks = [], []
         for log in sorted((out / task / m).glob("seed*/log.csv")):
@@ -32,8 +38,9 @@ def summary(out: Path, task: str, methods: list[str], base: float) -> str:
                 finals.append(rates[-1])
                 peaks.append(max(rates))
         if finals:
-            rows.append(f"{LABELS[m] + ' final':22s} {np.mean(finals):8.2f}   ({len(finals)} seeds)")
-            rows.append(f"{LABELS[m] + ' peak':22s} {np.mean(peaks):8.2f}")
+            label = LABELS[f"rust-{m}" if agents == "rust" else m]
+            rows.append(f"{label + ' final':30s} {np.mean(finals):8.2f}   ({len(finals)} seeds)")
+            rows.append(f"{label + ' peak':30s} {np.mean(peaks):8.2f}")
     return "\n".join(rows)
 
 
@@ -47,8 +54,45 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--eval-episodes", type=int, default=50)
     p.add_argument("--ent-init", type=float, default=None)
     p.add_argument("--workers", type=int, default=2)
-    p.add_argument("--out", default="runs/headline")
+    p.add_argument("--out", default=None, help="default runs/headline (Rust agents) or runs/headline-sb3")
+    p.add_argument("--agents", choices=["rust", "sb3"], default="rust", help="Rust agents or the SB3 + escnn baselines")
     a = p.parse_args(argv)
+    a.out = a.out or ("runs/headline" if a.agents == "rust" else "runs/headline-sb3")
+    if a.agents == "rust":
+        run_rust(a)
+    else:
+        run_sb3(a)
+    base = steer.base_success(a.task, a.out, a.eval_episodes)
+    write_report(a.out, Path(a.out) / "report")
+    print()
+    print(f"Steering the shipped {a.task} EDP ({a.steps:,} env steps per run, CPU preset, {a.agents} agents):")
+    print(summary(Path(a.out), a.task, a.methods, base, a.agents))
+    print(f"table and plot: {Path(a.out) / 'report'}")
+
+
+def run_rust(a: argparse.Namespace) -> None:
+    from equigym import steer as rust_steer
+
+    def one(job: tuple[str, int]) -> None:
+        method, seed = job
+        rust_steer.run(
+            method,
+            a.task,
+            seed,
+            a.steps,
+            a.out,
+            eval_every=a.eval_every,
+            eval_episodes=a.eval_episodes,
+            ent_init=a.ent_init,
+            progress=a.workers == 1,
+        )
+
+    jobs = [(m, s) for m in a.methods for s in a.seeds]
+    with ThreadPoolExecutor(max_workers=max(1, a.workers)) as pool:
+        list(pool.map(one, jobs))
+
+
+def run_sb3(a: argparse.Namespace) -> None:
     sweep_args = argparse.Namespace(
         methods=a.methods,
         tasks=[a.task],
@@ -65,12 +109,6 @@ def main(argv: list[str] | None = None) -> None:
         base_episodes=a.eval_episodes,
     )
     steer.sweep(sweep_args)
-    base = steer.base_success(a.task, a.out, a.eval_episodes)
-    write_report(a.out, Path(a.out) / "report")
-    print()
-    print(f"Steering the shipped {a.task} EDP ({a.steps:,} env steps per run, CPU preset):")
-    print(summary(Path(a.out), a.task, a.methods, base))
-    print(f"table and plot: {Path(a.out) / 'report'}")
 
 
 if __name__ == "__main__":

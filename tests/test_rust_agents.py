@@ -178,3 +178,19 @@ def test_bad_arguments_raise_value_errors(tmp_path):
         _core.steer_run("dsrl", "lift", 0, 16, str(tmp_path), preset="gpu")
     with pytest.raises(ValueError, match="controller"):
         _core.steer_run("dsrl", "lift", 0, 16, str(tmp_path), controller="torque")
+
+
+def test_main_job_steers_with_the_rust_agents(tmp_path, capsys):
+    """The README's main job (baselines.headline) runs the Rust agents by default: the runs are
+    Rust runs, logged at each evaluation, and the before/after table has their rows."""
+    from baselines import headline
+
+    argv = ["--steps", "128", "--eval-every", "64", "--eval-episodes", "2", "--seeds", "0", "1"]
+    headline.main([*argv, "--workers", "2", "--out", str(tmp_path)])
+    printed = capsys.readouterr().out
+    for seed in (0, 1):
+        run_dir = tmp_path / "lift" / "equi" / f"seed{seed}"
+        assert json.loads((run_dir / "run.json").read_text())["agent"] == "rust"
+        assert [int(r["env_steps"]) for r in read(run_dir / "log.csv")][-2:] == [64, 128]
+    assert "Equi-DSRL (Rust) final" in printed and "(2 seeds)" in printed and "before (base EDP)" in printed
+    assert (tmp_path / "report" / "lift.png").exists()

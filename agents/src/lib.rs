@@ -33,4 +33,4 @@ pub mod sac;
 
 pub use error::{Error, Result};
 pub use models::Method;
-pub use run::{run, Preset, RunConfig, RunSummary};
+pub use run::{run, Preset, RunConfig, RunSummary, TimeSplit};

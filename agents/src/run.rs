@@ -252,6 +252,8 @@ pub struct RunSummary {
     pub env_steps: u64,
     pub grad_steps: u64,
     pub seconds: f64,
+    /// This invocation's seconds by activity (a resumed run counts only its own part).
+    pub time: TimeSplit,
     /// Hidden regular fields of the equivariant nets (0 for DSRL).
     pub fields: usize,
     pub params_actor: usize,
@@ -373,6 +375,20 @@ struct Runner {
     elapsed: f64,
     rows: Vec<LogRow>,
     obs_dim: usize,
+    /// Where this invocation's time went (not checkpointed: wall time is not reproducible).
+    time: TimeSplit,
+}
+
+/// Wall-clock seconds of one invocation of [`run`] by activity, written to `summary.json` so
+/// that a run's cost can be attributed (gradient steps vs simulation).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TimeSplit {
+    /// Collecting transitions: actor forward passes, DDIM and the environments' physics.
+    pub rollout: f64,
+    /// Gradient steps (minibatch sampling included).
+    pub train: f64,
+    /// Evaluation episodes.
+    pub eval: f64,
 }
 
 impl Runner {
@@ -386,6 +402,7 @@ impl Runner {
 
     /// One vector step with its transitions and gradient steps.
     fn collect_and_train(&mut self, batch: &mut Batch<f32>) -> Result<()> {
+        let rollout_started = Instant::now();
         let (n, ad, od) = (self.envs.len(), self.sac.latent_dim(), self.obs_dim);
         let mut obs = vec![0.0f32; n * od];
         for (i, e) in self.envs.iter_mut().enumerate() {
@@ -419,6 +436,8 @@ impl Runner {
                 self.envs[i].reset(seed)?;
             }
         }
+        let train_started = Instant::now();
+        self.time.rollout += (train_started - rollout_started).as_secs_f64();
         if self.num_timesteps as usize > self.cfg.preset.warmup {
             for _ in 0..self.cfg.utd() * n {
                 self.replay.sample(self.cfg.preset.batch, &mut self.streams.replay, batch);
@@ -432,6 +451,7 @@ impl Runner {
                 }
             }
         }
+        self.time.train += train_started.elapsed().as_secs_f64();
         Ok(())
     }
 
@@ -649,6 +669,7 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         elapsed: 0.0,
         rows: Vec::new(),
         obs_dim,
+        time: TimeSplit::default(),
     };
     let dir = cfg.run_dir();
     std::fs::create_dir_all(&dir).map_err(|e| io_err(&dir, e))?;
@@ -684,7 +705,9 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         let steps = r.env_steps();
         if steps >= r.next_eval {
             r.next_eval += cfg.eval_every as u64;
+            let eval_started = Instant::now();
             let success_rate = r.evaluate()?;
+            r.time.eval += eval_started.elapsed().as_secs_f64();
             let mean_q = r.mean_q();
             r.elapsed = base_elapsed + started.elapsed().as_secs_f64();
             r.rows.push(LogRow { env_steps: steps, success_rate, mean_q, seconds: (r.elapsed * 10.0).round() / 10.0 });
@@ -719,13 +742,15 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         env_steps: r.env_steps(),
         grad_steps: r.grad_steps,
         seconds: base_elapsed + started.elapsed().as_secs_f64(),
+        time: r.time,
         fields,
         params_actor,
         params_critic,
     };
+    let t = summary.time;
     let done = format!(
-        "{{\"env_steps\": {}, \"grad_steps\": {}, \"params_hash\": \"{:016x}\", \"seconds\": {:.1}}}\n",
-        summary.env_steps, summary.grad_steps, summary.params_hash, summary.seconds
+        "{{\"env_steps\": {}, \"grad_steps\": {}, \"params_hash\": \"{:016x}\", \"seconds\": {:.1}, \"seconds_this_invocation\": {{\"rollout\": {:.1}, \"train\": {:.1}, \"eval\": {:.1}}}}}\n",
+        summary.env_steps, summary.grad_steps, summary.params_hash, summary.seconds, t.rollout, t.train, t.eval
     );
     write_atomic(&dir.join("summary.json"), done.as_bytes())?;
     Ok(summary)

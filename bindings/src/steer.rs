@@ -67,6 +67,11 @@ pub fn steer_run<'py>(
     d.set_item("env_steps", s.env_steps)?;
     d.set_item("grad_steps", s.grad_steps)?;
     d.set_item("seconds", s.seconds)?;
+    let split = PyDict::new(py);
+    split.set_item("rollout", s.time.rollout)?;
+    split.set_item("train", s.time.train)?;
+    split.set_item("eval", s.time.eval)?;
+    d.set_item("seconds_this_invocation", split)?;
     d.set_item("params_hash", format!("{:016x}", s.params_hash))?;
     d.set_item("fields", s.fields)?;
     d.set_item("params_actor", s.params_actor)?;

@@ -14,7 +14,7 @@ use std::time::Instant;
 
 use equigym_envs::rng::EpisodeRng;
 use equigym_envs::world::deepest_penetration;
-use equigym_envs::{Env, EnvConfig};
+use equigym_envs::Env;
 
 mod shared;
 use shared::adversarial::random_target;
@@ -31,9 +31,7 @@ fn main() {
 fn probe(setting: &Setting, episodes: u64) {
     let mut rng = EpisodeRng::from_seed(4242);
     for task in ["lift", "stack", "square"] {
-        let mut config = EnvConfig::new(task);
-        config.physics = setting.physics.clone();
-        let mut env = Env::new(config).unwrap();
+        let mut env = Env::new(setting.env_config(task)).unwrap();
         let start = Instant::now();
         // (depth, episode, step, deepest robot contact with an object at that moment)
         let mut worst = (0.0f64, 0u64, 0usize, 0.0f64);

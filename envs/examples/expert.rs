@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use equigym_envs::experts::{make_expert, ExpertOptions};
 use equigym_envs::render::save_png;
-use equigym_envs::{Env, EnvConfig};
+use equigym_envs::Env;
 
 mod shared;
 use shared::settings::Setting;
@@ -49,14 +49,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let task = args.get(1).cloned().unwrap_or_else(|| "lift".into());
     let episodes: u64 = args.get(2).map(|s| s.parse()).transpose()?.unwrap_or(50);
     let image = args.get(3).filter(|s| !s.is_empty()).cloned();
-    let mut config = EnvConfig::new(&task);
-    config.task_options.variant = args.get(4).cloned().filter(|v| !v.is_empty());
     let setting = Setting::parse(args.get(5).map(String::as_str).unwrap_or(""))?;
-    config.physics = setting.physics.clone();
+    let mut config = setting.env_config(&task);
+    config.task_options.variant = args.get(4).cloned().filter(|v| !v.is_empty());
     let mut env = Env::new(config)?;
     let mut expert = make_expert(&task, ExpertOptions::default())?;
     let mut log = Vec::new();
     let mut steps = 0usize;
+    // How far each commanded position is from where the hand is one control step later (m).
+    let mut lags = Vec::new();
     let start = Instant::now();
     for seed in 0..episodes {
         env.reset(seed)?;
@@ -76,7 +77,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         for _ in 0..env.horizon() {
             let action = expert.act(&env);
             steps += 1;
-            if env.step(&action)?.evaluation.success {
+            let done = env.step(&action)?.evaluation.success;
+            let hand = env.scene().tcp_pose().translation.vector;
+            lags.push((nalgebra::Vector3::new(action[0], action[1], action[2]) - hand).norm());
+            if done {
                 success = true;
                 break;
             }
@@ -89,6 +93,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "{task} expert: {wins}/{episodes} successes ({:.1}%), {steps} control steps in {secs:.2} s = {:.0} steps/s",
         100.0 * wins as f64 / episodes as f64,
         steps as f64 / secs
+    );
+    lags.sort_by(f64::total_cmp);
+    let quantile = |q: f64| 1e3 * lags[((lags.len() - 1) as f64 * q) as usize];
+    println!(
+        "  commanded position vs the hand one step later: mean {:.1} mm, p90 {:.1} mm, max {:.1} mm",
+        1e3 * lags.iter().sum::<f64>() / lags.len().max(1) as f64,
+        quantile(0.9),
+        quantile(1.0)
     );
     let names: Vec<&str> = env.task().objects().iter().map(|o| o.name).collect();
     if log.iter().any(|e| !e.success) {

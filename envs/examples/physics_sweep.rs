@@ -21,8 +21,7 @@ use shared::adversarial::random_target;
 use shared::settings::Setting;
 
 fn config(s: &Setting, horizon: usize) -> EnvConfig {
-    let mut cfg = EnvConfig::new("lift");
-    cfg.physics = s.physics.clone();
+    let mut cfg = s.env_config("lift");
     cfg.horizon = Some(horizon);
     cfg
 }

@@ -12,7 +12,7 @@
 //! - `rsub`: extra substeps requested by every robot link (not a `PhysicsConfig` field).
 
 use equigym_envs::world::PhysicsConfig;
-use equigym_envs::Env;
+use equigym_envs::{Env, EnvConfig};
 
 /// A parsed setting: the physics config and the two world-level overrides.
 #[derive(Clone, Debug)]
@@ -64,6 +64,14 @@ impl Setting {
             settings.push(Setting::parse("").unwrap());
         }
         settings
+    }
+
+    /// The config of `task` with this setting's physics (the world-level overrides go on with
+    /// [`Setting::apply`] after each reset).
+    pub fn env_config(&self, task: &str) -> EnvConfig {
+        let mut config = EnvConfig::new(task);
+        config.physics = self.physics.clone();
+        config
     }
 
     /// Apply the world-level overrides after a reset (the config goes into `EnvConfig`).
