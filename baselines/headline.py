@@ -17,30 +17,25 @@ and thread count, where the SB3 runs differ from one CPU to another. Each run is
 from __future__ import annotations
 
 import argparse
-import csv
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 from baselines import steer
-from baselines.report import LABELS, write_report
+from baselines.report import LABELS, load_runs, write_report
 
 
-def summary(out: Path, task: str, methods: list[str], base: float, agents: str = "rust") -> str:
+def summary(out: Path, task: str, methods: list[str], base: float) -> str:
+    """The before/after table; each run is labelled by its own run.json (Rust or SB3 agent)."""
     rows = [f"{'':30s} {'success':>8s}", f"{'before (base EDP)':30s} {base:8.2f}"]
-    for m in methods:
-        finals, peaks = [], []
-        for log in sorted((out / task / m).glob("seed*/log.csv")):
-            with open(log) as f:
-                rates = [float(r["success_rate"]) for r in csv.DictReader(f)]
-            if rates:
-                finals.append(rates[-1])
-                peaks.append(max(rates))
-        if finals:
-            label = LABELS[f"rust-{m}" if agents == "rust" else m]
-            rows.append(f"{label + ' final':30s} {np.mean(finals):8.2f}   ({len(finals)} seeds)")
-            rows.append(f"{label + ' peak':30s} {np.mean(peaks):8.2f}")
+    for (run_task, key), runs in sorted(load_runs(out).items()):
+        if run_task != task or key.removeprefix("rust-") not in methods:
+            continue
+        finals = [r["rows"][-1]["success_rate"] for r in runs]
+        peaks = [max(row["success_rate"] for row in r["rows"]) for r in runs]
+        rows.append(f"{LABELS[key] + ' final':30s} {np.mean(finals):8.2f}   ({len(finals)} seeds)")
+        rows.append(f"{LABELS[key] + ' peak':30s} {np.mean(peaks):8.2f}")
     return "\n".join(rows)
 
 
@@ -66,7 +61,7 @@ def main(argv: list[str] | None = None) -> None:
     write_report(a.out, Path(a.out) / "report")
     print()
     print(f"Steering the shipped {a.task} EDP ({a.steps:,} env steps per run, CPU preset, {a.agents} agents):")
-    print(summary(Path(a.out), a.task, a.methods, base, a.agents))
+    print(summary(Path(a.out), a.task, a.methods, base))
     print(f"table and plot: {Path(a.out) / 'report'}")
 
 
