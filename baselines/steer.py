@@ -210,6 +210,54 @@ def mean_q(model: SAC, batch: int = 256) -> float:
     return float(torch.min(torch.cat(qs, dim=1), dim=1).values.mean())
 
 
+TRAIN_COLUMNS = ["env_steps", "alpha", "entropy", "edge_fraction", "critic_loss", "target_q", "policy_q"]
+EDGE = 0.99  # a latent coordinate (or a rho1 pair's radius) beyond this is at the edge of the box
+
+
+def diagnostics(model: SAC, batch: int = 256) -> dict[str, float]:
+    """The learner's state on a replay sample, as the Rust agents' ``train.csv`` records it:
+    entropy coefficient, policy entropy, fraction of latent coordinates at the edge of the box,
+    SB3's critic loss against the soft target, mean target, mean Q at the actor's own actions.
+    The global numpy and torch random states are restored afterwards, so that recording them
+    does not change the run."""
+    nan = {k: float("nan") for k in TRAIN_COLUMNS[1:]}
+    if model.replay_buffer is None or model.replay_buffer.size() == 0:
+        return nan
+    np_state, torch_state = np.random.get_state(), torch.get_rng_state()
+    try:
+        data = model.replay_buffer.sample(min(batch, model.replay_buffer.size()))
+        with torch.no_grad():
+            alpha = (
+                float(torch.exp(model.log_ent_coef.detach()))
+                if model.log_ent_coef is not None
+                else float(model.ent_coef_tensor)
+            )
+            a, logp = model.actor.action_log_prob(data.observations)
+            a2, logp2 = model.actor.action_log_prob(data.next_observations)
+            next_q = torch.min(torch.cat(model.critic_target(data.next_observations, a2), dim=1), dim=1).values
+            y = data.rewards.flatten() + (1 - data.dones.flatten()) * model.gamma * (next_q - alpha * logp2.flatten())
+            qs = model.critic(data.observations, data.actions)
+            critic_loss = 0.5 * sum(float(torch.mean((q.flatten() - y) ** 2)) for q in qs)
+            policy_q = torch.min(torch.cat(model.critic(data.observations, a), dim=1), dim=1).values
+            pairs = getattr(model.actor, "pairs", None)
+            if pairs is not None and len(pairs):
+                singles = model.actor.singles
+                edge = 2 * int((a[:, pairs].norm(dim=-1) > EDGE).sum()) + int((a[:, singles].abs() > EDGE).sum())
+            else:
+                edge = int((a.abs() > EDGE).sum())
+        return {
+            "alpha": alpha,
+            "entropy": float(-logp.mean()),
+            "edge_fraction": edge / a.numel(),
+            "critic_loss": critic_loss,
+            "target_q": float(y.mean()),
+            "policy_q": float(policy_q.mean()),
+        }
+    finally:
+        np.random.set_state(np_state)
+        torch.set_rng_state(torch_state)
+
+
 class EvalLogger(BaseCallback):
     def __init__(
         self, make, log_path: Path, ckpt: Path, every: int, episodes: int, chunk: int, total: int, progress: bool
@@ -245,6 +293,14 @@ class EvalLogger(BaseCallback):
                 if new:
                     w.writerow(["env_steps", "success_rate", "mean_q", "seconds"])
                 w.writerow([steps, rate, mean_q(self.model), round(time.time() - self.t0, 1)])
+            train_log = self.log_path.with_name("train.csv")
+            new = not train_log.exists()
+            with open(train_log, "a", newline="") as f:
+                w = csv.writer(f)
+                if new:
+                    w.writerow(TRAIN_COLUMNS)
+                d = diagnostics(self.model)
+                w.writerow([steps] + [d[k] for k in TRAIN_COLUMNS[1:]])
             self.model.save(self.ckpt / "model.zip")
             self.model.save_replay_buffer(self.ckpt / "replay.pkl")
         return steps < self.total

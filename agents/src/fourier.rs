@@ -112,17 +112,16 @@ impl<T: Real> Circulant<T> {
 
     /// Spatial (rows x 8 F) -> Fourier blocks, concatenated: [x0 | x4 | xc1 | xc2 | xc3], each
     /// block rows x (F or 2 F). One gemm (`(rows F) x 8` times `T^T`), then a reshuffle.
-    fn fourier(&self, x: &[T], rows: usize, f: usize, out: &mut Vec<T>) {
+    fn fourier(&self, x: &[T], rows: usize, f: usize, out: &mut Vec<T>, c: &mut Vec<T>) {
         let mut tt = [T::ZERO; ORDER * ORDER];
         for k in 0..ORDER {
             for a in 0..ORDER {
                 tt[a * ORDER + k] = self.t[k][a];
             }
         }
-        let mut c = vec![T::ZERO; rows * f * ORDER];
-        gemm(rows * f, ORDER, ORDER, x, Trans::N, &tt, &mut c, false);
-        out.clear();
-        out.resize(rows * 8 * f, T::ZERO);
+        ops::resize_for_overwrite(c, rows * f * ORDER);
+        gemm(rows * f, ORDER, ORDER, x, Trans::N, &tt, c, false);
+        ops::resize_for_overwrite(out, rows * 8 * f);
         let (o0, o4) = out.split_at_mut(rows * f);
         let (o4, oc) = o4.split_at_mut(rows * f);
         for r in 0..rows {
@@ -141,8 +140,8 @@ impl<T: Real> Circulant<T> {
 
     /// Fourier blocks -> spatial (rows x 8 F), added into `out`: a reshuffle, then one gemm
     /// (`(rows F) x 8` times `T`).
-    fn add_spatial(&self, xh: &[T], rows: usize, f: usize, out: &mut [T]) {
-        let mut c = vec![T::ZERO; rows * f * ORDER];
+    fn add_spatial(&self, xh: &[T], rows: usize, f: usize, out: &mut [T], c: &mut Vec<T>) {
+        ops::resize_for_overwrite(c, rows * f * ORDER);
         let (x0, x4) = xh.split_at(rows * f);
         let (x4, xc) = x4.split_at(rows * f);
         for r in 0..rows {
@@ -157,8 +156,11 @@ impl<T: Real> Circulant<T> {
                 }
             }
         }
-        let t: Vec<T> = self.t.iter().flatten().copied().collect();
-        gemm(rows * f, ORDER, ORDER, &c, Trans::N, &t, out, true);
+        let mut t = [T::ZERO; ORDER * ORDER];
+        for (dst, src) in t.iter_mut().zip(self.t.iter().flatten()) {
+            *dst = *src;
+        }
+        gemm(rows * f, ORDER, ORDER, c, Trans::N, &t, out, true);
     }
 
     /// Block offsets within a Fourier buffer of `f` fields.
@@ -167,12 +169,21 @@ impl<T: Real> Circulant<T> {
     }
 
     /// Forward: `out` (rows x 8 F_out) from `x` (rows x 8 F_in); keeps the input's Fourier
-    /// blocks in `xhat` for the backward pass.
-    pub fn forward(&self, params: &[T], x: &[T], rows: usize, out: &mut Vec<T>, xhat: &mut Vec<T>, yhat: &mut Vec<T>) {
+    /// blocks in `xhat` for the backward pass (`yhat` and `spare` are reused buffers).
+    #[allow(clippy::too_many_arguments)]
+    pub fn forward(
+        &self,
+        params: &[T],
+        x: &[T],
+        rows: usize,
+        out: &mut Vec<T>,
+        xhat: &mut Vec<T>,
+        yhat: &mut Vec<T>,
+        spare: &mut Vec<T>,
+    ) {
         let (fi, fo) = (self.f_in, self.f_out);
-        self.fourier(x, rows, fi, xhat);
-        yhat.clear();
-        yhat.resize(rows * 8 * fo, T::ZERO);
+        self.fourier(x, rows, fi, xhat, spare);
+        ops::resize_for_overwrite(yhat, rows * 8 * fo);
         let (oi, oo) = (Self::offsets(rows, fi), Self::offsets(rows, fo));
         for k in 0..5 {
             let (n_in, n_out) = self.block_dims(k);
@@ -187,15 +198,17 @@ impl<T: Real> Circulant<T> {
                 false,
             );
         }
-        out.clear();
-        out.resize(rows * ORDER * fo, T::ZERO);
-        let bias: Vec<T> = (0..fo).flat_map(|f| std::iter::repeat_n(params[self.b + f], ORDER)).collect();
-        ops::fill_bias(out, &bias);
-        self.add_spatial(yhat, rows, fo, out);
+        ops::resize_for_overwrite(out, rows * ORDER * fo);
+        for row in out.chunks_exact_mut(ORDER * fo) {
+            for (f, field) in row.chunks_exact_mut(ORDER).enumerate() {
+                field.fill(params[self.b + f]);
+            }
+        }
+        self.add_spatial(yhat, rows, fo, out, spare);
     }
 
     /// Backward from `dy` (rows x 8 F_out): parameter gradients into `grads` (when given), the
-    /// input gradient into `dx` (when given).
+    /// input gradient into `dx` (when given); `dyhat`, `gm` and `spare` are reused buffers.
     #[allow(clippy::too_many_arguments)]
     pub fn backward(
         &self,
@@ -206,10 +219,11 @@ impl<T: Real> Circulant<T> {
         dx: Option<&mut Vec<T>>,
         dyhat: &mut Vec<T>,
         gm: &mut Vec<T>,
+        spare: &mut Vec<T>,
     ) {
         let (fi, fo) = (self.f_in, self.f_out);
         // The inverse transform is T^T, so its backward is T.
-        self.fourier(dy, rows, fo, dyhat);
+        self.fourier(dy, rows, fo, dyhat, spare);
         let (oi, oo) = (Self::offsets(rows, fi), Self::offsets(rows, fo));
         if let Some(g) = grads {
             let n = fi * fo;
@@ -224,8 +238,7 @@ impl<T: Real> Circulant<T> {
             }
             for k in 0..5 {
                 let (n_in, n_out) = self.block_dims(k);
-                gm.clear();
-                gm.resize(n_in * n_out, T::ZERO);
+                ops::resize_for_overwrite(gm, n_in * n_out);
                 gemm(n_in, n_out, rows, &xhat[oi[k]..oi[k + 1]], Trans::T, &dyhat[oo[k]..oo[k + 1]], gm, false);
                 if k < 2 {
                     for (gi, v) in g[self.w + k * n..self.w + (k + 1) * n].iter_mut().zip(gm.iter()) {
@@ -248,8 +261,7 @@ impl<T: Real> Circulant<T> {
             }
         }
         if let Some(dx) = dx {
-            gm.clear();
-            gm.resize(rows * 8 * fi, T::ZERO);
+            ops::resize_for_overwrite(gm, rows * 8 * fi);
             for k in 0..5 {
                 let (n_in, n_out) = self.block_dims(k);
                 gemm(
@@ -265,7 +277,7 @@ impl<T: Real> Circulant<T> {
             }
             dx.clear();
             dx.resize(rows * ORDER * fi, T::ZERO);
-            self.add_spatial(gm, rows, fi, dx);
+            self.add_spatial(gm, rows, fi, dx, spare);
         }
     }
 

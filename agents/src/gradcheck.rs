@@ -7,10 +7,10 @@ use equigym_wrappers::{Group, TaskSymmetry};
 
 use crate::error::Result;
 use crate::models::{Arch, Method, Models, Squash, GROUP_ORDER};
-use crate::net::{Layer, LinearKind, Net, Tape};
+use crate::net::{Layer, LinearKind, Net};
 use crate::replay::Batch;
 use crate::rng::{Rng, Stream};
-use crate::sac::{actor_loss_grad, alpha_loss_grad, concat_rows, critic_loss_grad, soft_target, ActorSample};
+use crate::sac::{actor_loss_grad, alpha_loss_grad, concat_rows, critic_loss_grad, soft_target, ActorSample, Buffers};
 
 /// One layer, with parameter offsets into its net's flat vector.
 #[derive(Clone, Debug)]
@@ -148,19 +148,19 @@ pub fn grad_case(method: Method, task: &str, seed: u64, rows: usize) -> Result<G
     };
     let alpha = log_alpha.exp();
     let mut s2 = ActorSample::default();
-    let y = soft_target(&m.head, &m.actor, &m.critics, &batch, &eps2, alpha, gamma, &mut s2);
+    let (mut buf, mut y) = (Buffers::default(), Vec::new());
+    soft_target(&m.head, &m.actor, &m.critics, &batch, &eps2, alpha, gamma, &mut s2, &mut buf, &mut y);
     let mut x = Vec::new();
     concat_rows(&obs, od, &act, ad, rows, &mut x);
     let mut critic_grads = [vec![0.0; m.critics[0].num_params()], vec![0.0; m.critics[1].num_params()]];
     let mut critic_losses = [0.0; 2];
     for k in 0..2 {
-        critic_losses[k] =
-            critic_loss_grad(&m.critics[k], &x, &y, &mut critic_grads[k], &mut Tape::default(), &mut Vec::new());
+        critic_losses[k] = critic_loss_grad(&m.critics[k], &x, &y, &mut critic_grads[k], &mut buf);
     }
     let mut s1 = ActorSample::default();
     m.head.sample(&m.actor, &obs, rows, &eps1, &mut s1);
     let mut actor_grad = vec![0.0; m.actor.num_params()];
-    let actor_loss = actor_loss_grad(&m.head, &m.actor, &m.critics, &obs, &s1, alpha, &mut actor_grad, &mut Vec::new());
+    let actor_loss = actor_loss_grad(&m.head, &m.actor, &m.critics, &obs, &s1, alpha, &mut actor_grad, &mut buf);
     let (alpha_loss, alpha_grad) = alpha_loss_grad(log_alpha, &s1.logp, target_entropy);
     let radial = match &m.head.squash {
         Squash::Tanh => None,

@@ -323,6 +323,22 @@ impl Squash {
         logdet
     }
 
+    /// Coordinates of one squashed row `a` at the edge: `|a_i| > edge` (tanh, rho0 values), or
+    /// both coordinates of a rho1 pair whose radius exceeds `edge`.
+    pub fn at_edge<T: Real>(&self, a: &[T], edge: f64) -> usize {
+        let beyond = |v: T| v.to_f64().abs() > edge;
+        match self {
+            Squash::Tanh => a.iter().filter(|v| beyond(**v)).count(),
+            Squash::Radial { pairs, singles } => {
+                let pair_count = pairs
+                    .iter()
+                    .filter(|(x, y)| (a[*x].to_f64().powi(2) + a[*y].to_f64().powi(2)).sqrt() > edge)
+                    .count();
+                2 * pair_count + singles.iter().filter(|i| beyond(a[**i])).count()
+            }
+        }
+    }
+
     /// Backward for one row: `gu = ga . da/du + g_logdet * dlogdet/du`.
     pub fn backward<T: Real>(&self, u: &[T], a: &[T], ga: &[T], g_logdet: T, gu: &mut [T]) {
         let two = T::from_f64(2.0);

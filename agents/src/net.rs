@@ -78,6 +78,22 @@ pub struct Tape<T> {
     aux: Vec<Vec<T>>,
     /// PoolHead: the argmax position of each field, per row.
     argmax: Vec<Vec<u32>>,
+    /// Reused buffers of the Fourier layers' forward pass.
+    yhat: Vec<T>,
+    spare: Vec<T>,
+}
+
+/// Buffers a backward pass reuses from call to call, so that a gradient step allocates nothing
+/// once warm. Fresh buffers each pass cost page faults: before they were kept, 23 % of a DSRL
+/// gradient step's time was spent in the kernel (`perf` on `examples/bench --only dsrl`).
+#[derive(Clone, Debug, Default)]
+pub struct Workspace<T> {
+    d: Vec<T>,
+    next: Vec<T>,
+    lin: Vec<T>,
+    dyhat: Vec<T>,
+    gm: Vec<T>,
+    spare: Vec<T>,
 }
 
 impl<T: Real> Tape<T> {
@@ -303,27 +319,23 @@ impl<T: Real> Net<T> {
                     width = lin.n_out;
                 }
                 Layer::LayerNorm { n, g, s } => {
-                    out.clear();
-                    out.extend_from_slice(input);
+                    ops::resize_for_overwrite(out, input.len());
                     let aux = &mut tape.aux[l];
                     aux.resize(rows * n + rows, T::ZERO);
                     let (xhat, rstd) = aux.split_at_mut(rows * n);
-                    ops::layer_norm(out, *n, &self.params[*g..*g + n], &self.params[*s..*s + n], xhat, rstd);
+                    ops::layer_norm(input, out, *n, &self.params[*g..*g + n], &self.params[*s..*s + n], xhat, rstd);
                 }
                 Layer::Tanh => {
-                    out.clear();
-                    out.extend_from_slice(input);
-                    ops::tanh(out);
+                    ops::resize_for_overwrite(out, input.len());
+                    ops::tanh_into(input, out);
                 }
                 Layer::Circulant(c) => {
-                    let mut yhat = Vec::new();
-                    c.forward(&self.params, input, rows, out, &mut tape.aux[l], &mut yhat);
+                    c.forward(&self.params, input, rows, out, &mut tape.aux[l], &mut tape.yhat, &mut tape.spare);
                     width = c.f_out * ORDER;
                 }
                 Layer::Relu => {
-                    out.clear();
-                    out.extend_from_slice(input);
-                    ops::relu(out);
+                    ops::resize_for_overwrite(out, input.len());
+                    ops::relu_into(input, out);
                 }
                 Layer::PoolHead { fields, order, w, b, plain } => {
                     out.resize(rows, T::ZERO);
@@ -359,18 +371,19 @@ impl<T: Real> Net<T> {
     }
 
     /// Backward from `dy` (gradient of the output, `rows x n_out`). Adds parameter gradients
-    /// into `grads` when given; returns the input gradient when `want_dx`.
-    pub fn backward(
+    /// into `grads` when given; returns the input gradient (held in `ws`) when `want_dx`.
+    pub fn backward<'w>(
         &self,
         tape: &Tape<T>,
         dy: &[T],
         mut grads: Option<&mut [T]>,
         want_dx: bool,
-        scratch: &mut Vec<T>,
-    ) -> Option<Vec<T>> {
+        ws: &'w mut Workspace<T>,
+    ) -> Option<&'w [T]> {
         let rows = tape.rows;
-        let mut d = dy[..rows * self.n_out].to_vec();
-        let mut next = Vec::new();
+        let Workspace { d, next, lin: scratch, dyhat, gm, spare } = ws;
+        d.clear();
+        d.extend_from_slice(&dy[..rows * self.n_out]);
         for (l, layer) in self.layers.iter().enumerate().rev() {
             let input = &tape.acts[l];
             let output = &tape.acts[l + 1];
@@ -381,15 +394,15 @@ impl<T: Real> Net<T> {
                     if let Some(g) = grads.as_deref_mut() {
                         match &lin.kind {
                             LinearKind::Dense { w, b } => {
-                                gemm(n_in, n_out, rows, input, Trans::T, &d, &mut g[*w..*w + n_in * n_out], true);
-                                ops::add_column_sums(&d, &mut g[*b..*b + n_out]);
+                                gemm(n_in, n_out, rows, input, Trans::T, d, &mut g[*w..*w + n_in * n_out], true);
+                                ops::add_column_sums(d, &mut g[*b..*b + n_out]);
                             }
                             LinearKind::Equi { basis, w, plain } => {
                                 scratch.clear();
                                 scratch.resize(n_in * n_out + n_out, T::ZERO);
                                 let (gw, gb) = scratch.split_at_mut(n_in * n_out);
-                                gemm(n_in, n_out, rows, input, Trans::T, &d, gw, false);
-                                ops::add_column_sums(&d, gb);
+                                gemm(n_in, n_out, rows, input, Trans::T, d, gw, false);
+                                ops::add_column_sums(d, gb);
                                 for &(e, p, c) in &basis.weights {
                                     let i = *w + p as usize;
                                     g[i] += gw[e as usize] * T::from_f64(c);
@@ -410,10 +423,9 @@ impl<T: Real> Net<T> {
                         }
                     }
                     if need_dx {
-                        next.clear();
-                        next.resize(rows * n_in, T::ZERO);
-                        gemm(rows, n_in, n_out, &d, Trans::N, &lin.w, &mut next, false);
-                        std::mem::swap(&mut d, &mut next);
+                        ops::resize_for_overwrite(next, rows * n_in);
+                        gemm(rows, n_in, n_out, d, Trans::N, &lin.w, next, false);
+                        std::mem::swap(d, next);
                     }
                 }
                 Layer::LayerNorm { n, g, s } => {
@@ -425,28 +437,28 @@ impl<T: Real> Net<T> {
                             // gain and shift are adjacent (g, then s = g + n)
                             debug_assert_eq!(*s, *g + n);
                             let (dg, ds) = gr[*g..*s + n].split_at_mut(*n);
-                            ops::layer_norm_backward(&mut d, *n, gain, xhat, rstd, Some((dg, ds)));
+                            ops::layer_norm_backward(d, *n, gain, xhat, rstd, Some((dg, ds)));
                         }
-                        None => ops::layer_norm_backward(&mut d, *n, gain, xhat, rstd, None),
+                        None => ops::layer_norm_backward(d, *n, gain, xhat, rstd, None),
                     }
                 }
-                Layer::Tanh => ops::tanh_backward(output, &mut d),
+                Layer::Tanh => ops::tanh_backward(output, d),
                 Layer::Circulant(c) => {
-                    let (mut dyhat, mut gm) = (Vec::new(), Vec::new());
                     c.backward(
                         &tape.aux[l],
-                        &d,
+                        d,
                         rows,
                         grads.as_deref_mut(),
-                        need_dx.then_some(&mut next),
-                        &mut dyhat,
-                        &mut gm,
+                        need_dx.then_some(&mut *next),
+                        dyhat,
+                        gm,
+                        spare,
                     );
                     if need_dx {
-                        std::mem::swap(&mut d, &mut next);
+                        std::mem::swap(d, next);
                     }
                 }
-                Layer::Relu => ops::relu_backward(output, &mut d),
+                Layer::Relu => ops::relu_backward(output, d),
                 Layer::PoolHead { fields, order, w, b, plain } => {
                     let width = fields * order;
                     let am = &tape.argmax[l];
@@ -481,7 +493,7 @@ impl<T: Real> Net<T> {
                                 row[f * order + a] += d[r] * self.params[*w + f];
                             }
                         }
-                        std::mem::swap(&mut d, &mut next);
+                        std::mem::swap(d, next);
                     }
                 }
             }
@@ -489,7 +501,7 @@ impl<T: Real> Net<T> {
                 return None;
             }
         }
-        Some(d)
+        Some(&d[..])
     }
 
     /// Convert to another float type (the f64 twin of an f32 net for parity tests).

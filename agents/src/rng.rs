@@ -13,6 +13,7 @@
 //! | [`Stream::Train`] | the actor's reparameterisation noise inside a gradient step |
 //! | [`Stream::MeanQ`] | the replay sample whose mean Q the log reports |
 //! | [`Stream::Eval`] | the stochastic actor's noise in evaluation episode `index` |
+//! | [`Stream::Diagnostics`] | replay sample and actor noise of the learner diagnostics at evaluation `index` |
 
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -30,6 +31,7 @@ pub enum Stream {
     Train = 6,
     MeanQ = 7,
     Eval = 8,
+    Diagnostics = 9,
 }
 
 /// Domain separator in every key, so that these streams differ from any other ChaCha use.

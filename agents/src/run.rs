@@ -13,6 +13,10 @@
 //!   batched; each has its own noise stream, so the result does not depend on the batching.
 //! - `log.csv`: `env_steps, success_rate, mean_q, seconds`; mean Q is min over the twin critics,
 //!   averaged over 256 replay transitions.
+//! - `train.csv`, one row per evaluation: the learner's state on another 256 replay transitions
+//!   ([`Diagnostics`]: entropy coefficient, policy entropy, fraction of latent coordinates at
+//!   the edge of the box, critic loss, mean soft target, mean Q at the actor's own actions),
+//!   drawn from their own stream so that recording them changes nothing else.
 //!
 //! One difference in order: SB3 evaluates inside its step callback, before that step's
 //! transitions are stored and trained on; here the evaluation comes after them, at a point
@@ -42,7 +46,7 @@ use crate::error::{io_err, Error, Result};
 use crate::models::{Arch, Method, Models, GROUP_ORDER};
 use crate::replay::{Batch, Replay, DEFAULT_CAPACITY};
 use crate::rng::{Rng, Stream};
-use crate::sac::{normals, Sac, SacConfig};
+use crate::sac::{normals, Diagnostics, Sac, SacConfig};
 
 /// Learning rate, Polyak rate and target entropy (DSRL's).
 pub const LEARNING_RATE: f64 = 3e-4;
@@ -58,7 +62,7 @@ pub const EVAL_SEED: u64 = 10_000;
 /// Replay transitions whose mean Q the log reports.
 pub const MEAN_Q_SAMPLE: usize = 256;
 /// Checkpoint format tag.
-pub const CHECKPOINT_FORMAT: &str = "equigym-agents-ckpt-1";
+pub const CHECKPOINT_FORMAT: &str = "equigym-agents-ckpt-2";
 const CHECKPOINT_FILE: &str = "checkpoint.bin";
 /// Shipped diffusion policies (`assets/edp/<task>.safetensors`) in the source tree.
 pub const DEFAULT_POLICY_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../assets/edp");
@@ -283,6 +287,13 @@ impl Streams {
     }
 }
 
+/// The first field of every checkpoint format, read before the rest so that an older format is
+/// named as such rather than reported as corrupt.
+#[derive(Deserialize)]
+struct CheckpointHeader {
+    format: String,
+}
+
 #[derive(Serialize, Deserialize)]
 struct Checkpoint {
     format: String,
@@ -302,6 +313,7 @@ struct Checkpoint {
     grad_steps: u64,
     elapsed: f64,
     rows: Vec<LogRow>,
+    diagnostics: Vec<Diagnostics>,
 }
 
 /// FNV-1a over f32 bits.
@@ -374,6 +386,8 @@ struct Runner {
     grad_steps: u64,
     elapsed: f64,
     rows: Vec<LogRow>,
+    /// One per row of `rows`.
+    diagnostics: Vec<Diagnostics>,
     obs_dim: usize,
     /// Where this invocation's time went (not checkpointed: wall time is not reproducible).
     time: TimeSplit,
@@ -507,6 +521,17 @@ impl Runner {
         s as f64
     }
 
+    /// The learner's state at evaluation `rows.len()` (its own stream: see [`crate::rng`]).
+    fn diagnose(&mut self) -> Diagnostics {
+        if self.replay.is_empty() {
+            return Diagnostics::default();
+        }
+        let mut rng = Rng::new(self.cfg.seed, Stream::Diagnostics, self.rows.len() as u64);
+        let mut b = Batch::<f32>::default();
+        self.replay.sample(MEAN_Q_SAMPLE.min(self.replay.len()), &mut rng, &mut b);
+        self.sac.diagnose(&b, &mut rng)
+    }
+
     fn checkpoint(&mut self) -> Result<Checkpoint> {
         let envs = self.envs.iter().map(|e| e.env().get_state()).collect::<std::result::Result<Vec<_>, EnvError>>()?;
         Ok(Checkpoint {
@@ -527,6 +552,7 @@ impl Runner {
             grad_steps: self.grad_steps,
             elapsed: self.elapsed,
             rows: self.rows.clone(),
+            diagnostics: self.diagnostics.clone(),
         })
     }
 
@@ -581,6 +607,7 @@ impl Runner {
         self.grad_steps = c.grad_steps;
         self.elapsed = c.elapsed;
         self.rows = c.rows;
+        self.diagnostics = c.diagnostics;
         Ok(())
     }
 
@@ -595,7 +622,13 @@ impl Runner {
                 r.seconds
             ));
         }
-        write_atomic(&dir.join("log.csv"), s.as_bytes())
+        write_atomic(&dir.join("log.csv"), s.as_bytes())?;
+        let mut s = String::from("env_steps,alpha,entropy,edge_fraction,critic_loss,target_q,policy_q\n");
+        for (r, d) in self.rows.iter().zip(&self.diagnostics) {
+            let cells = [d.alpha, d.entropy, d.edge_fraction, d.critic_loss, d.target_q, d.policy_q].map(fmt_float);
+            s.push_str(&format!("{},{}\n", r.env_steps, cells.join(",")));
+        }
+        write_atomic(&dir.join("train.csv"), s.as_bytes())
     }
 }
 
@@ -668,6 +701,7 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         grad_steps: 0,
         elapsed: 0.0,
         rows: Vec::new(),
+        diagnostics: Vec::new(),
         obs_dim,
         time: TimeSplit::default(),
     };
@@ -676,10 +710,21 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
     let ckpt_path = dir.join(CHECKPOINT_FILE);
     if ckpt_path.exists() {
         let bytes = std::fs::read(&ckpt_path).map_err(|e| io_err(&ckpt_path, e))?;
-        let c: Checkpoint = postcard::from_bytes(&bytes).map_err(|e| Error::Checkpoint {
+        let corrupt = |e: postcard::Error| Error::Checkpoint {
             path: ckpt_path.display().to_string(),
             reason: format!("corrupt ({e})"),
-        })?;
+        };
+        let header: CheckpointHeader = postcard::from_bytes(&bytes).map_err(corrupt)?;
+        if header.format != CHECKPOINT_FORMAT {
+            return Err(Error::Checkpoint {
+                path: ckpt_path.display().to_string(),
+                reason: format!(
+                    "format '{}' is not '{CHECKPOINT_FORMAT}' (written by another equigym version); use another --out or delete it",
+                    header.format
+                ),
+            });
+        }
+        let c: Checkpoint = postcard::from_bytes(&bytes).map_err(corrupt)?;
         r.restore(c, &ckpt_path)?;
         r.write_log(&dir)?;
     } else {
@@ -709,6 +754,8 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
             let success_rate = r.evaluate()?;
             r.time.eval += eval_started.elapsed().as_secs_f64();
             let mean_q = r.mean_q();
+            let diagnostics = r.diagnose();
+            r.diagnostics.push(diagnostics);
             r.elapsed = base_elapsed + started.elapsed().as_secs_f64();
             r.rows.push(LogRow { env_steps: steps, success_rate, mean_q, seconds: (r.elapsed * 10.0).round() / 10.0 });
             r.write_log(&dir)?;

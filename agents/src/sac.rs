@@ -17,7 +17,7 @@ use equigym_nn::{Adam, AdamConfig, Real};
 use serde::{Deserialize, Serialize};
 
 use crate::models::{Models, PolicyHead};
-use crate::net::{Net, Tape};
+use crate::net::{Net, Tape, Workspace};
 use crate::replay::Batch;
 use crate::rng::Rng;
 
@@ -41,6 +41,22 @@ pub struct ActorSample<T> {
     pub a: Vec<T>,
     pub std: Vec<T>,
     pub logp: Vec<T>,
+}
+
+/// Buffers the SAC losses reuse from call to call, so that a gradient step allocates nothing
+/// once warm (see [`Workspace`]).
+#[derive(Clone, Debug, Default)]
+pub struct Buffers<T> {
+    ws: Workspace<T>,
+    tapes: [Tape<T>; 2],
+    x: Vec<T>,
+    dout: Vec<T>,
+    gu: Vec<T>,
+    dsel: [Vec<T>; 2],
+    ga: Vec<T>,
+    next_q: Vec<T>,
+    dq: Vec<T>,
+    glogp: Vec<T>,
 }
 
 /// Fill `out` with standard normal draws (f64 Box-Muller, rounded).
@@ -84,7 +100,8 @@ impl PolicyHead {
     }
 
     /// Backward of a sample: `ga` = dL/da (rows x dim), `glogp` = dL/dlog pi per row; adds the
-    /// actor's parameter gradients into `grads`.
+    /// actor's parameter gradients into `grads` (`dout`, `gu` and `ws` are reused buffers).
+    #[allow(clippy::too_many_arguments)]
     pub fn sample_backward<T: Real>(
         &self,
         actor: &Net<T>,
@@ -92,16 +109,20 @@ impl PolicyHead {
         ga: &[T],
         glogp: &[T],
         grads: &mut [T],
-        scratch: &mut Vec<T>,
+        dout: &mut Vec<T>,
+        gu: &mut Vec<T>,
+        ws: &mut Workspace<T>,
     ) {
         let (d, rows, width) = (self.dim, s.rows, actor.n_out);
         let out = s.tape.output();
-        let mut dout = vec![T::ZERO; rows * width];
-        let mut gu = vec![T::ZERO; d];
+        dout.clear();
+        dout.resize(rows * width, T::ZERO);
+        gu.clear();
+        gu.resize(d, T::ZERO);
         let (lo, hi) = (T::from_f64(self.log_std_range.0), T::from_f64(self.log_std_range.1));
         for r in 0..rows {
             let sl = r * d..(r + 1) * d;
-            self.squash.backward(&s.u[sl.clone()], &s.a[sl.clone()], &ga[sl.clone()], -glogp[r], &mut gu);
+            self.squash.backward(&s.u[sl.clone()], &s.a[sl.clone()], &ga[sl.clone()], -glogp[r], gu);
             let o = &out[r * width..(r + 1) * width];
             let dr = &mut dout[r * width..(r + 1) * width];
             for i in 0..d {
@@ -113,12 +134,12 @@ impl PolicyHead {
                 }
             }
         }
-        actor.backward(&s.tape, &dout, Some(grads), false, scratch);
+        actor.backward(&s.tape, dout, Some(grads), false, ws);
     }
 }
 
 /// The soft target `y = r + gamma (1 - terminated) (min_k Q'_k(s', a') - alpha log pi(a'|s'))`,
-/// with `a'` the actor's sample for noise `eps` (kept in `s2`).
+/// with `a'` the actor's sample for noise `eps` (kept in `s2`), into `y`.
 #[allow(clippy::too_many_arguments)]
 pub fn soft_target<T: Real>(
     head: &PolicyHead,
@@ -129,40 +150,38 @@ pub fn soft_target<T: Real>(
     alpha: T,
     gamma: T,
     s2: &mut ActorSample<T>,
-) -> Vec<T> {
+    buf: &mut Buffers<T>,
+    y: &mut Vec<T>,
+) {
     let (b, ad) = (batch.rows, head.dim);
     let od = batch.obs.len() / b.max(1);
     head.sample(actor, &batch.next_obs, b, eps, s2);
-    let mut x = Vec::new();
-    concat_rows(&batch.next_obs, od, &s2.a, ad, b, &mut x);
-    let mut tape = Tape::default();
-    let mut next_q = vec![T::ZERO; b];
+    concat_rows(&batch.next_obs, od, &s2.a, ad, b, &mut buf.x);
+    let (tape, next_q) = (&mut buf.tapes[0], &mut buf.next_q);
+    next_q.clear();
+    next_q.resize(b, T::ZERO);
     for (k, t) in targets.iter().enumerate() {
-        t.forward(&x, b, &mut tape);
+        t.forward(&buf.x, b, tape);
         for (q, v) in next_q.iter_mut().zip(tape.output()) {
             *q = if k == 0 { *v } else { q.min(*v) };
         }
     }
-    (0..b).map(|r| batch.reward[r] + (T::ONE - batch.done[r]) * gamma * (next_q[r] - alpha * s2.logp[r])).collect()
+    y.clear();
+    y.extend((0..b).map(|r| batch.reward[r] + (T::ONE - batch.done[r]) * gamma * (next_q[r] - alpha * s2.logp[r])));
 }
 
 /// One critic's loss `0.5 mean_r (Q(x_r) - y_r)^2` (the SB3 critic loss is the sum over the
 /// twins); its parameter gradient is added into `grads`.
-pub fn critic_loss_grad<T: Real>(
-    critic: &Net<T>,
-    x: &[T],
-    y: &[T],
-    grads: &mut [T],
-    tape: &mut Tape<T>,
-    scratch: &mut Vec<T>,
-) -> f64 {
+pub fn critic_loss_grad<T: Real>(critic: &Net<T>, x: &[T], y: &[T], grads: &mut [T], buf: &mut Buffers<T>) -> f64 {
     let b = y.len();
     let inv_b = T::from_f64(1.0 / b as f64);
+    let tape = &mut buf.tapes[0];
     critic.forward(x, b, tape);
     let q = tape.output();
-    let dq: Vec<T> = q.iter().zip(y).map(|(q, y)| (*q - *y) * inv_b).collect();
+    buf.dq.clear();
+    buf.dq.extend(q.iter().zip(y).map(|(q, y)| (*q - *y) * inv_b));
     let loss = q.iter().zip(y).map(|(q, y)| 0.5 * (q.to_f64() - y.to_f64()).powi(2)).sum::<f64>() / b as f64;
-    critic.backward(tape, &dq, Some(grads), false, scratch);
+    critic.backward(tape, &buf.dq, Some(grads), false, &mut buf.ws);
     loss
 }
 
@@ -177,29 +196,32 @@ pub fn actor_loss_grad<T: Real>(
     s1: &ActorSample<T>,
     alpha: T,
     grads: &mut [T],
-    scratch: &mut Vec<T>,
+    buf: &mut Buffers<T>,
 ) -> f64 {
     let (b, ad) = (s1.rows, head.dim);
     let od = actor.n_in;
     let inv_b = T::from_f64(1.0 / b as f64);
-    let mut x = Vec::new();
-    concat_rows(obs, od, &s1.a, ad, b, &mut x);
-    let mut tapes = [Tape::default(), Tape::default()];
+    let Buffers { ws, tapes, x, dout, gu, dsel, ga, glogp, .. } = buf;
+    concat_rows(obs, od, &s1.a, ad, b, x);
     for k in 0..2 {
-        critics[k].forward(&x, b, &mut tapes[k]);
+        critics[k].forward(x, b, &mut tapes[k]);
     }
     let (q0, q1) = (tapes[0].output(), tapes[1].output());
     let mut loss = 0.0;
-    let mut dsel = [vec![T::ZERO; b], vec![T::ZERO; b]];
+    for ds in dsel.iter_mut() {
+        ds.clear();
+        ds.resize(b, T::ZERO);
+    }
     for r in 0..b {
         // torch.min over the twins: the gradient goes to the first minimum
         let k = if q0[r] <= q1[r] { 0 } else { 1 };
         dsel[k][r] = -inv_b;
         loss += (alpha.to_f64() * s1.logp[r].to_f64() - q0[r].min(q1[r]).to_f64()) / b as f64;
     }
-    let mut ga = vec![T::ZERO; b * ad];
+    ga.clear();
+    ga.resize(b * ad, T::ZERO);
     for k in 0..2 {
-        if let Some(dx) = critics[k].backward(&tapes[k], &dsel[k], None, true, scratch) {
+        if let Some(dx) = critics[k].backward(&tapes[k], &dsel[k], None, true, ws) {
             for r in 0..b {
                 for i in 0..ad {
                     ga[r * ad + i] += dx[r * (od + ad) + od + i];
@@ -207,8 +229,9 @@ pub fn actor_loss_grad<T: Real>(
             }
         }
     }
-    let glogp = vec![alpha * inv_b; b];
-    head.sample_backward(actor, s1, &ga, &glogp, grads, scratch);
+    glogp.clear();
+    glogp.resize(b, alpha * inv_b);
+    head.sample_backward(actor, s1, ga, glogp, grads, dout, gu, ws);
     loss
 }
 
@@ -242,11 +265,11 @@ struct Scratch<T> {
     s1: ActorSample<T>,
     s2: ActorSample<T>,
     tape: Tape<T>,
-    tapes: [Tape<T>; 2],
     x: Vec<T>,
+    y: Vec<T>,
     grads: Vec<T>,
-    lin: Vec<T>,
     eps: Vec<T>,
+    buf: Buffers<T>,
 }
 
 /// What one gradient step reports (for tests and logs).
@@ -256,6 +279,28 @@ pub struct StepStats {
     pub actor_loss: f64,
     pub alpha: f64,
     pub alpha_loss: f64,
+}
+
+/// A latent coordinate counts as at the edge of the bounded box once its squashed magnitude
+/// (the radius, for a rho1 pair) exceeds this.
+pub const EDGE: f64 = 0.99;
+
+/// The learner's state on one replay sample: what decides whether SAC is stable, recorded at
+/// every evaluation (`train.csv`) so that a collapse can be traced to its cause.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Diagnostics {
+    /// Entropy coefficient `exp(log_alpha)`.
+    pub alpha: f64,
+    /// `-mean log pi(a|s)`, `a ~ pi(.|s)` (of the squashed action; the target is `-target_entropy`).
+    pub entropy: f64,
+    /// Fraction of latent coordinates at the edge of the box (see [`EDGE`]).
+    pub edge_fraction: f64,
+    /// SB3's critic loss on the sample: `0.5 sum_k mean (Q_k(s, a) - y)^2`.
+    pub critic_loss: f64,
+    /// Mean soft target `y`.
+    pub target_q: f64,
+    /// Mean `min_k Q_k(s, a')` at the actor's own actions `a' ~ pi(.|s)`.
+    pub policy_q: f64,
 }
 
 /// Concatenate obs (rows x od) and actions (rows x ad) row by row.
@@ -319,6 +364,53 @@ impl<T: Real> Sac<T> {
         q
     }
 
+    /// The learner's state on `batch` (no parameter changes); `rng` draws the actor's noise.
+    pub fn diagnose(&mut self, batch: &Batch<T>, rng: &mut Rng) -> Diagnostics {
+        let (od, ad, b) = (self.obs_dim, self.head.dim, batch.rows);
+        if b == 0 {
+            return Diagnostics::default();
+        }
+        let alpha = self.log_alpha.exp();
+        let mut eps = vec![T::ZERO; b * ad];
+        normals(rng, &mut eps);
+        let mut s1 = ActorSample::default();
+        self.head.sample(&self.actor, &batch.obs, b, &eps, &mut s1);
+        normals(rng, &mut eps);
+        let (mut s2, mut buf, mut y) = (ActorSample::default(), Buffers::default(), Vec::new());
+        soft_target(
+            &self.head,
+            &self.actor,
+            &self.targets,
+            batch,
+            &eps,
+            alpha,
+            T::from_f64(self.config.gamma),
+            &mut s2,
+            &mut buf,
+            &mut y,
+        );
+        let mean = |v: &mut dyn Iterator<Item = f64>| v.sum::<f64>() / b as f64;
+        let policy_q = mean(&mut self.min_q(&batch.obs, &s1.a, b).iter().map(|q| q.to_f64()));
+        let mut x = Vec::new();
+        concat_rows(&batch.obs, od, &batch.act, ad, b, &mut x);
+        let mut tape = Tape::default();
+        let mut critic_loss = 0.0;
+        for c in &self.critics {
+            c.forward(&x, b, &mut tape);
+            critic_loss +=
+                0.5 * mean(&mut tape.output().iter().zip(&y).map(|(q, y)| (q.to_f64() - y.to_f64()).powi(2)));
+        }
+        let edge: usize = s1.a.chunks(ad).map(|a| self.head.squash.at_edge(a, EDGE)).sum();
+        Diagnostics {
+            alpha: alpha.to_f64(),
+            entropy: -mean(&mut s1.logp.iter().map(|l| l.to_f64())),
+            edge_fraction: edge as f64 / (b * ad) as f64,
+            critic_loss,
+            target_q: mean(&mut y.iter().map(|v| v.to_f64())),
+            policy_q,
+        }
+    }
+
     /// One gradient step on a minibatch (see the module docs); `rng` is the training stream.
     pub fn train_step(&mut self, batch: &Batch<T>, rng: &mut Rng) -> StepStats {
         let (od, ad, b) = (self.obs_dim, self.head.dim, batch.rows);
@@ -335,7 +427,7 @@ impl<T: Real> Sac<T> {
         self.log_alpha = la[0];
         // 3. target
         normals(rng, &mut sc.eps);
-        let y = soft_target(
+        soft_target(
             &self.head,
             &self.actor,
             &self.targets,
@@ -344,6 +436,8 @@ impl<T: Real> Sac<T> {
             alpha,
             T::from_f64(self.config.gamma),
             &mut sc.s2,
+            &mut sc.buf,
+            &mut sc.y,
         );
         // 4. critics
         concat_rows(&batch.obs, od, &batch.act, ad, b, &mut sc.x);
@@ -352,7 +446,7 @@ impl<T: Real> Sac<T> {
             let c = &mut self.critics[k];
             sc.grads.clear();
             sc.grads.resize(c.num_params(), T::ZERO);
-            critic_loss += critic_loss_grad(c, &sc.x, &y, &mut sc.grads, &mut sc.tapes[k], &mut sc.lin);
+            critic_loss += critic_loss_grad(c, &sc.x, &sc.y, &mut sc.grads, &mut sc.buf);
             self.opt_critics[k].update(&mut c.params, &sc.grads);
             c.expand();
         }
@@ -367,7 +461,7 @@ impl<T: Real> Sac<T> {
             &sc.s1,
             alpha,
             &mut sc.grads,
-            &mut sc.lin,
+            &mut sc.buf,
         );
         self.opt_actor.update(&mut self.actor.params, &sc.grads);
         self.actor.expand();

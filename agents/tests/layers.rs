@@ -31,7 +31,8 @@ fn loss_and_grads(net: &Net<f64>, x: &[f64], c: &[f64]) -> (f64, Vec<f64>, Vec<f
     net.forward(x, ROWS, &mut tape);
     let loss = tape.output().iter().zip(c).map(|(a, b)| a * b).sum();
     let mut g = vec![0.0; net.num_params()];
-    let dx = net.backward(&tape, c, Some(&mut g), true, &mut Vec::new()).unwrap();
+    let mut ws = Default::default();
+    let dx = net.backward(&tape, c, Some(&mut g), true, &mut ws).unwrap().to_vec();
     (loss, g, dx)
 }
 
@@ -87,7 +88,7 @@ fn actor_loss(m: &Models<f64>, actor: &Net<f64>, obs: &[f64], eps: &[f64], alpha
     let mut s = ActorSample::default();
     m.head.sample(actor, obs, ROWS, eps, &mut s);
     let mut g = vec![0.0; actor.num_params()];
-    let loss = actor_loss_grad(&m.head, actor, &m.critics, obs, &s, alpha, &mut g, &mut Vec::new());
+    let loss = actor_loss_grad(&m.head, actor, &m.critics, obs, &s, alpha, &mut g, &mut Default::default());
     (loss, g)
 }
 
@@ -132,7 +133,7 @@ fn critic_and_entropy_losses_match_finite_differences() {
         let y = randn(ROWS, &mut rng);
         let loss = |net: &Net<f64>| {
             let mut g = vec![0.0; net.num_params()];
-            (critic_loss_grad(net, &x, &y, &mut g, &mut Tape::default(), &mut Vec::new()), g)
+            (critic_loss_grad(net, &x, &y, &mut g, &mut Default::default()), g)
         };
         let (_, g) = loss(c);
         for i in (0..c.num_params()).step_by((c.num_params() / 50).max(1)) {

@@ -24,9 +24,22 @@ pub fn add_column_sums<T: Real>(dy: &[T], grad: &mut [T]) {
     }
 }
 
+/// Resize `v` to `n` elements for a kernel that then writes every element: unlike
+/// `clear` + `resize`, a buffer reused at the same length is not zeroed first.
+pub fn resize_for_overwrite<T: Real>(v: &mut Vec<T>, n: usize) {
+    v.resize(n, T::ZERO);
+}
+
 pub fn relu<T: Real>(x: &mut [T]) {
     for v in x {
         *v = if *v > T::ZERO { *v } else { T::ZERO };
+    }
+}
+
+/// `y = relu(x)` (`y` as long as `x`).
+pub fn relu_into<T: Real>(x: &[T], y: &mut [T]) {
+    for (o, v) in y.iter_mut().zip(x) {
+        *o = if *v > T::ZERO { *v } else { T::ZERO };
     }
 }
 
@@ -37,28 +50,29 @@ pub fn relu_backward<T: Real>(y: &[T], dy: &mut [T]) {
     }
 }
 
-pub fn tanh<T: Real>(x: &mut [T]) {
+/// `y = tanh(x)` (`y` as long as `x`).
+pub fn tanh_into<T: Real>(x: &[T], y: &mut [T]) {
     #[cfg(target_arch = "x86_64")]
     {
         if crate::has_fast_fma() {
             // SAFETY: the CPU has the features; the arithmetic is unfused either way.
-            unsafe { tanh_avx2(x) };
+            unsafe { tanh_avx2(x, y) };
             return;
         }
     }
-    tanh_body(x)
+    tanh_body(x, y)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn tanh_avx2<T: Real>(x: &mut [T]) {
-    tanh_body(x)
+unsafe fn tanh_avx2<T: Real>(x: &[T], y: &mut [T]) {
+    tanh_body(x, y)
 }
 
 #[inline(always)]
-fn tanh_body<T: Real>(x: &mut [T]) {
-    for v in x {
-        *v = v.tanh();
+fn tanh_body<T: Real>(x: &[T], y: &mut [T]) {
+    for (o, v) in y.iter_mut().zip(x) {
+        *o = v.tanh();
     }
 }
 
@@ -69,29 +83,49 @@ pub fn tanh_backward<T: Real>(y: &[T], dy: &mut [T]) {
     }
 }
 
-/// LayerNorm over each row of `x` (`rows x n`) in place, with gain and shift; keeps the
+/// Rows whose statistics one pass of [`layer_norm`] and [`layer_norm_backward`] accumulates side
+/// by side. Each row keeps its own accumulator, summed in index order exactly as a row-at-a-time
+/// loop would, so the bits do not change; interleaving only hides the adds' latency (a single
+/// row's running sum is one dependent chain: measured 1.9x on the forward at 64 features).
+pub const LAYER_NORM_ROW_BLOCK: usize = 8;
+
+/// LayerNorm over each row of `x` (`rows x n`) into `y`, with gain and shift; keeps the
 /// normalised values `xhat` and `1/std` per row for the backward pass.
-pub fn layer_norm<T: Real>(x: &mut [T], n: usize, gain: &[T], shift: &[T], xhat: &mut [T], rstd: &mut [T]) {
+pub fn layer_norm<T: Real>(x: &[T], y: &mut [T], n: usize, gain: &[T], shift: &[T], xhat: &mut [T], rstd: &mut [T]) {
+    const B: usize = LAYER_NORM_ROW_BLOCK;
     let inv_n = T::from_f64(1.0 / n as f64);
     let eps = T::from_f64(LAYER_NORM_EPS);
-    for ((row, xh), rs) in x.chunks_exact_mut(n).zip(xhat.chunks_exact_mut(n)).zip(rstd.iter_mut()) {
-        let mut mean = T::ZERO;
-        for v in row.iter() {
-            mean += *v;
+    let rows = rstd.len().min(x.len() / n.max(1));
+    let mut r0 = 0;
+    while r0 < rows {
+        let nb = B.min(rows - r0);
+        let mut mean = [T::ZERO; B];
+        for j in 0..n {
+            for b in 0..nb {
+                mean[b] += x[(r0 + b) * n + j];
+            }
         }
-        mean *= inv_n;
-        let mut var = T::ZERO;
-        for v in row.iter() {
-            let d = *v - mean;
-            var += d * d;
+        for m in mean.iter_mut() {
+            *m *= inv_n;
         }
-        var *= inv_n;
-        let r = T::ONE / (var + eps).sqrt();
-        *rs = r;
-        for ((v, h), (g, s)) in row.iter_mut().zip(xh.iter_mut()).zip(gain.iter().zip(shift)) {
-            *h = (*v - mean) * r;
-            *v = *h * *g + *s;
+        let mut var = [T::ZERO; B];
+        for j in 0..n {
+            for b in 0..nb {
+                let d = x[(r0 + b) * n + j] - mean[b];
+                var[b] += d * d;
+            }
         }
+        for b in 0..nb {
+            let r = T::ONE / (var[b] * inv_n + eps).sqrt();
+            rstd[r0 + b] = r;
+            let at = (r0 + b) * n;
+            let (row, out, xh) = (&x[at..at + n], &mut y[at..at + n], &mut xhat[at..at + n]);
+            for (((v, o), h), (g, s)) in row.iter().zip(out.iter_mut()).zip(xh.iter_mut()).zip(gain.iter().zip(shift)) {
+                *h = (*v - mean[b]) * r;
+                *o = *h * *g + *s;
+            }
+        }
+        r0 += nb;
     }
 }
 
@@ -105,27 +139,38 @@ pub fn layer_norm_backward<T: Real>(
     rstd: &[T],
     mut grads: Option<(&mut [T], &mut [T])>,
 ) {
+    const B: usize = LAYER_NORM_ROW_BLOCK;
     let inv_n = T::from_f64(1.0 / n as f64);
-    for ((row, xh), r) in dy.chunks_exact_mut(n).zip(xhat.chunks_exact(n)).zip(rstd) {
-        if let Some((dg, ds)) = grads.as_mut() {
+    let rows = rstd.len().min(dy.len() / n.max(1));
+    if let Some((dg, ds)) = grads.as_mut() {
+        for (row, xh) in dy.chunks_exact(n).zip(xhat.chunks_exact(n)).take(rows) {
             for j in 0..n {
                 dg[j] += row[j] * xh[j];
                 ds[j] += row[j];
             }
         }
-        let mut mean_d = T::ZERO;
-        let mut mean_dx = T::ZERO;
+    }
+    let mut r0 = 0;
+    while r0 < rows {
+        let nb = B.min(rows - r0);
+        let (mut mean_d, mut mean_dx) = ([T::ZERO; B], [T::ZERO; B]);
         for j in 0..n {
-            let d = row[j] * gain[j];
-            mean_d += d;
-            mean_dx += d * xh[j];
+            for b in 0..nb {
+                let at = (r0 + b) * n + j;
+                let d = dy[at] * gain[j];
+                mean_d[b] += d;
+                mean_dx[b] += d * xhat[at];
+            }
         }
-        mean_d *= inv_n;
-        mean_dx *= inv_n;
-        for j in 0..n {
-            let d = row[j] * gain[j];
-            row[j] = (d - mean_d - xh[j] * mean_dx) * *r;
+        for b in 0..nb {
+            let (md, mdx, r) = (mean_d[b] * inv_n, mean_dx[b] * inv_n, rstd[r0 + b]);
+            let at = (r0 + b) * n;
+            for j in 0..n {
+                let d = dy[at + j] * gain[j];
+                dy[at + j] = (d - md - xhat[at + j] * mdx) * r;
+            }
         }
+        r0 += nb;
     }
 }
 
