@@ -264,7 +264,11 @@ class EvalLogger(BaseCallback):
     ):
         super().__init__()
         self.make, self.log_path, self.ckpt, self.every, self.episodes = make, log_path, ckpt, every, episodes
-        self.chunk, self.total, self.t0 = chunk, total, time.time()
+        # A resumed run continues its log: its clock and its evaluation schedule (a run resumed
+        # from the checkpoint of the evaluation at step S must not evaluate at S again).
+        rows = list(csv.reader(log_path.read_text().splitlines()))[1:] if log_path.exists() else []
+        self.last_logged = int(rows[-1][0]) if rows else None
+        self.chunk, self.total, self.t0 = chunk, total, time.time() - (float(rows[-1][3]) if rows else 0.0)
         self.next_eval = 0
         self.bar = None
         if progress:
@@ -277,6 +281,8 @@ class EvalLogger(BaseCallback):
 
     def _on_training_start(self) -> None:
         self.next_eval = (self.env_steps() // self.every) * self.every
+        if self.last_logged is not None and self.last_logged >= self.next_eval:
+            self.next_eval = (self.last_logged // self.every + 1) * self.every
         if self.bar is not None:
             self.bar.update(self.env_steps())
 
@@ -341,6 +347,9 @@ def run(
     if (ckpt / "model.zip").exists():
         model = model.__class__.load(ckpt / "model.zip", env=model.get_env(), device="cpu")
         model.load_replay_buffer(ckpt / "replay.pkl")
+    else:  # logs of an older run without a checkpoint would mix two runs
+        for stale in ("log.csv", "train.csv"):
+            (run_dir / stale).unlink(missing_ok=True)
     (run_dir / "run.json").write_text(json.dumps(meta, indent=1))
     print(json.dumps(meta))
     cb = EvalLogger(make, run_dir / "log.csv", ckpt, eval_every, eval_episodes, chunk, steps, progress)

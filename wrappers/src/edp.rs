@@ -354,8 +354,7 @@ impl DiffusionPolicy {
         let last = self.layers.len() - 1;
         for (i, l) in self.layers.iter().enumerate() {
             let (wt, bias) = params(l);
-            b.clear();
-            b.resize(rows * l.n_out, T::ZERO);
+            ops::resize_for_overwrite(b, rows * l.n_out);
             ops::fill_bias(b, bias);
             gemm(rows, l.n_out, l.n_in, a, Trans::N, wt, b, true);
             if i < last {

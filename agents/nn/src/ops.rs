@@ -154,10 +154,10 @@ pub fn layer_norm_backward<T: Real>(
     while r0 < rows {
         let nb = B.min(rows - r0);
         let (mut mean_d, mut mean_dx) = ([T::ZERO; B], [T::ZERO; B]);
-        for j in 0..n {
+        for (j, g) in gain.iter().enumerate().take(n) {
             for b in 0..nb {
                 let at = (r0 + b) * n + j;
-                let d = dy[at] * gain[j];
+                let d = dy[at] * *g;
                 mean_d[b] += d;
                 mean_dx[b] += d * xhat[at];
             }
