@@ -4,7 +4,8 @@
   the DSRL recipe.
 - ``equi``: Equi-DSRL: a C_N-equivariant actor (means in the latent's representation, one shared
   log-std per rho1 pair and per rho0 value) and C_N-invariant twin critics (regular hidden fields,
-  group pooling), built with escnn. The bounded action stays exactly equivariant with a radial
+  group pooling), built with escnn; every hidden linear layer is followed by a field-tied
+  LayerNorm (one gain and shift per regular field) and Tanh, the DSRL recipe made equivariant. The bounded action stays exactly equivariant with a radial
   squash per rho1 pair, a = tanh(|u|) u / |u| (``squash="radial"``, default), whose log-det
   log(1 - tanh^2 |u|) + log(tanh|u| / |u|) corrects the log-probability; ``squash="tanh"`` keeps
   the elementwise tanh (equivariant for C4 only).
@@ -102,8 +103,29 @@ class _ResidualLinear(nn.Module):
         return y
 
 
+class _FieldNorm(nn.Module):
+    """LayerNorm over all units of a row of regular fields with one gain and one shift per field.
+
+    The row's mean and variance are invariant under the cyclic shifts within fields and a tied
+    gain and shift commute with them, so the layer is exactly equivariant (DSRL's LayerNorm made
+    equivariant; the Rust agents' ``FieldNorm``)."""
+
+    def __init__(self, ftype, order: int):
+        super().__init__()
+        self.out_type, self.order = ftype, order
+        fields = ftype.size // order
+        self.weight = nn.Parameter(torch.ones(fields))
+        self.bias = nn.Parameter(torch.zeros(fields))
+
+    def forward(self, x):
+        t = x.tensor
+        gain, shift = self.weight.repeat_interleave(self.order), self.bias.repeat_interleave(self.order)
+        return self.out_type(nn.functional.layer_norm(t, (t.shape[-1],), gain, shift, eps=1e-5))
+
+
 class _EquiTrunk(nn.Module):
-    """in_type -> [Linear + ReLU] x layers on regular fields (escnn, optionally RPP)."""
+    """in_type -> [Linear + field-tied LayerNorm + Tanh] x layers on regular fields (escnn,
+    optionally RPP)."""
 
     def __init__(self, g: _Group, in_type, hidden_fields: int, layers: int, residual: bool):
         super().__init__()
@@ -111,7 +133,11 @@ class _EquiTrunk(nn.Module):
         t = in_type
         for _ in range(layers):
             h = g.regular(hidden_fields)
-            mods += [_ResidualLinear(g, t, h, residual), g.enn.ReLU(h)]
+            mods += [
+                _ResidualLinear(g, t, h, residual),
+                _FieldNorm(h, g.order),
+                g.enn.PointwiseNonLinearity(h, "p_tanh"),
+            ]
             t = h
         self.net = nn.Sequential(*mods)
         self.out_type = t

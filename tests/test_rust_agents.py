@@ -50,6 +50,10 @@ def net_forward(spec: dict, p: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         elif k == "layer_norm":
             n, g, s = L["n"], L["g"], L["s"]
             x = torch.nn.functional.layer_norm(x, (n,), p[g : g + n], p[s : s + n], eps=1e-5)
+        elif k == "field_norm":
+            f, o, g, s = L["fields"], L["order"], L["g"], L["s"]
+            gain, shift = p[g : g + f].repeat_interleave(o), p[s : s + f].repeat_interleave(o)
+            x = torch.nn.functional.layer_norm(x, (f * o,), gain, shift, eps=1e-5)
         elif k == "tanh":
             x = torch.tanh(x)
         elif k == "relu":

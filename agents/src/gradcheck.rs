@@ -40,6 +40,14 @@ pub enum LayerSpec {
         g: usize,
         s: usize,
     },
+    /// LayerNorm over `fields x order` units, gain `params[g + f]` and shift `params[s + f]` for
+    /// every unit of field `f`.
+    FieldNorm {
+        fields: usize,
+        order: usize,
+        g: usize,
+        s: usize,
+    },
     Tanh,
     Relu,
     PoolHead {
@@ -79,6 +87,9 @@ pub fn describe(net: &Net<f64>) -> Vec<LayerSpec> {
                 },
             },
             Layer::LayerNorm { n, g, s } => LayerSpec::LayerNorm { n: *n, g: *g, s: *s },
+            Layer::FieldNorm { fields, order, g, s, .. } => {
+                LayerSpec::FieldNorm { fields: *fields, order: *order, g: *g, s: *s }
+            }
             Layer::Tanh => LayerSpec::Tanh,
             Layer::Relu => LayerSpec::Relu,
             Layer::PoolHead { fields, order, w, b, plain } => {

@@ -4,7 +4,12 @@
 //! - **DSRL**: MLPs with LayerNorm after every hidden linear layer and Tanh (the DSRL recipe, as
 //!   `baselines/agents.py::LayerNormSACPolicy`); actor outputs mean and log-std per latent
 //!   dimension (log-std clamped to [-20, 2], SB3's range), elementwise tanh squash.
-//! - **Equi-DSRL**: C8-equivariant trunks of regular fields with ReLU; the actor head maps onto
+//! - **Equi-DSRL**: C8-equivariant trunks of regular fields, each linear layer followed by a
+//!   field-tied LayerNorm and Tanh (DSRL's recipe made equivariant: one gain and shift per
+//!   field; see [`crate::net::Layer::FieldNorm`]). Without the normalisation, ReLU trunks let the
+//!   critics diverge at UTD 4 on the articulated arm: once the policy's entropy collapsed
+//!   (8k env steps, Lift, seed 1), mean Q climbed to +1,750 where true soft returns are below 0
+//!   (`train.csv` of that run, docs/steering.md). The actor head maps onto
 //!   the latent's rho1 / rho0 blocks (the means) plus one invariant log-std per block (a shared,
 //!   isotropic std per rho1 pair; clamped to [-5, 2]); the radial squash
 //!   `a = tanh(|u|) u / |u|` per rho1 pair (elementwise tanh on rho0 values) keeps the bounded
@@ -29,7 +34,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::equi::{fields_of, regular_fields, Basis, Field};
 use crate::error::{Error, Result};
-use crate::net::{Net, NetBuilder};
+use crate::net::{Net, NetBuilder, RPP_EQUI_DECAY};
 use crate::rng::{Rng, Stream};
 
 /// The group of the paper: C8.
@@ -154,16 +159,18 @@ fn trunk<'a, T: Real>(
 ) -> Result<NetBuilder<'a, T>> {
     let hidden = regular_fields(fields, GROUP_ORDER);
     let width = fields * GROUP_ORDER;
+    let norm_decay = if residual { RPP_EQUI_DECAY } else { 0.0 };
     let basis = Arc::new(Basis::new(inputs, n_in, &hidden, width, GROUP_ORDER)?);
-    b = b.equi(basis, residual).relu();
+    b = b.equi(basis, residual).field_norm(GROUP_ORDER, norm_decay).tanh();
     for _ in 1..layers {
         if residual {
             // RPP adds a dense plain path anyway: one expanded matrix serves both.
             let basis = Arc::new(Basis::new(&hidden, width, &hidden, width, GROUP_ORDER)?);
-            b = b.equi(basis, true).relu();
+            b = b.equi(basis, true);
         } else {
-            b = b.circulant(fields).relu();
+            b = b.circulant(fields);
         }
+        b = b.field_norm(GROUP_ORDER, norm_decay).tanh();
     }
     Ok(b)
 }
@@ -177,9 +184,10 @@ pub fn equi_param_count(sym: &TaskSymmetry, fields: usize, layers: usize, residu
         basis.n_weights + basis.n_bias + if residual { basis.n_in * basis.n_out + basis.n_out } else { 0 }
     };
     let trunk_count = |inputs: &[Field], n_in: usize| -> Result<usize> {
-        let mut total = count(&Basis::new(inputs, n_in, &hidden, width, GROUP_ORDER)?);
+        // every hidden layer has a field-tied LayerNorm: one gain and one shift per field
+        let mut total = count(&Basis::new(inputs, n_in, &hidden, width, GROUP_ORDER)?) + 2 * fields;
         if layers > 1 {
-            total += (layers - 1) * count(&Basis::new(&hidden, width, &hidden, width, GROUP_ORDER)?);
+            total += (layers - 1) * (count(&Basis::new(&hidden, width, &hidden, width, GROUP_ORDER)?) + 2 * fields);
         }
         Ok(total)
     };

@@ -1,5 +1,6 @@
 //! Feed-forward networks over one flat parameter vector: plain and equivariant linear layers
-//! (optionally with a residual plain path, RPP), LayerNorm, Tanh, ReLU, and the invariant
+//! (optionally with a residual plain path, RPP), LayerNorm (plain, or field-tied for regular
+//! fields), Tanh, ReLU, and the invariant
 //! group-pooling head of a critic. Forward keeps a [`Tape`]; backward adds parameter gradients
 //! into a flat gradient vector and returns the input gradient when asked.
 //!
@@ -52,6 +53,19 @@ pub enum Layer<T> {
         n: usize,
         g: usize,
         s: usize,
+    },
+    /// LayerNorm over all `fields x order` units of a row of regular fields, with one gain and
+    /// one shift per field (at `g` and `s`, `fields` each). The row's mean and variance are
+    /// invariant under the group's cyclic shifts within fields and the tied gain and shift
+    /// commute with them, so the layer is exactly equivariant. `gain` and `shift` hold the
+    /// per-unit expansion (refreshed by [`Net::expand`]).
+    FieldNorm {
+        fields: usize,
+        order: usize,
+        g: usize,
+        s: usize,
+        gain: Vec<T>,
+        shift: Vec<T>,
     },
     Tanh,
     Relu,
@@ -210,6 +224,19 @@ impl<'a, T: Real> NetBuilder<'a, T> {
         self
     }
 
+    /// A field-tied LayerNorm over the current regular fields of size `order` (gain 1, shift 0),
+    /// its parameters with weight `decay`.
+    pub fn field_norm(mut self, order: usize, decay: f64) -> Self {
+        let n = self.width;
+        let fields = n / order;
+        debug_assert_eq!(fields * order, n);
+        let g = self.alloc_const(fields, 1.0, decay);
+        let s = self.alloc_const(fields, 0.0, decay);
+        let (gain, shift) = (vec![T::ONE; n], vec![T::ZERO; n]);
+        self.net.layers.push(Layer::FieldNorm { fields, order, g, s, gain, shift });
+        self
+    }
+
     pub fn tanh(mut self) -> Self {
         self.net.layers.push(Layer::Tanh);
         self
@@ -263,6 +290,13 @@ impl<T: Real> Net<T> {
         for layer in &mut self.layers {
             if let Layer::Circulant(c) = layer {
                 c.expand(params);
+                continue;
+            }
+            if let Layer::FieldNorm { order, g, s, gain, shift, .. } = layer {
+                for (j, (gj, sj)) in gain.iter_mut().zip(shift.iter_mut()).enumerate() {
+                    *gj = params[*g + j / *order];
+                    *sj = params[*s + j / *order];
+                }
                 continue;
             }
             let Layer::Linear(l) = layer else { continue };
@@ -324,6 +358,14 @@ impl<T: Real> Net<T> {
                     aux.resize(rows * n + rows, T::ZERO);
                     let (xhat, rstd) = aux.split_at_mut(rows * n);
                     ops::layer_norm(input, out, *n, &self.params[*g..*g + n], &self.params[*s..*s + n], xhat, rstd);
+                }
+                Layer::FieldNorm { fields, order, gain, shift, .. } => {
+                    let n = fields * order;
+                    ops::resize_for_overwrite(out, input.len());
+                    let aux = &mut tape.aux[l];
+                    aux.resize(rows * n + rows, T::ZERO);
+                    let (xhat, rstd) = aux.split_at_mut(rows * n);
+                    ops::layer_norm(input, out, n, gain, shift, xhat, rstd);
                 }
                 Layer::Tanh => {
                     ops::resize_for_overwrite(out, input.len());
@@ -442,6 +484,27 @@ impl<T: Real> Net<T> {
                         None => ops::layer_norm_backward(d, *n, gain, xhat, rstd, None),
                     }
                 }
+                Layer::FieldNorm { fields, order, g, s, gain, .. } => {
+                    let n = fields * order;
+                    let aux = &tape.aux[l];
+                    let (xhat, rstd) = aux.split_at(rows * n);
+                    match grads.as_deref_mut() {
+                        Some(gr) => {
+                            // per-unit gradients first, then each field's sum over its units
+                            scratch.clear();
+                            scratch.resize(2 * n, T::ZERO);
+                            let (dg, ds) = scratch.split_at_mut(n);
+                            ops::layer_norm_backward(d, n, gain, xhat, rstd, Some((dg, ds)));
+                            for (f, (dgf, dsf)) in dg.chunks_exact(*order).zip(ds.chunks_exact(*order)).enumerate() {
+                                for (a, b) in dgf.iter().zip(dsf) {
+                                    gr[*g + f] += *a;
+                                    gr[*s + f] += *b;
+                                }
+                            }
+                        }
+                        None => ops::layer_norm_backward(d, n, gain, xhat, rstd, None),
+                    }
+                }
                 Layer::Tanh => ops::tanh_backward(output, d),
                 Layer::Circulant(c) => {
                     c.backward(
@@ -519,6 +582,14 @@ impl<T: Real> Net<T> {
                     bias: vec![U::ZERO; lin.bias.len()],
                 }),
                 Layer::LayerNorm { n, g, s } => Layer::LayerNorm { n: *n, g: *g, s: *s },
+                Layer::FieldNorm { fields, order, g, s, .. } => Layer::FieldNorm {
+                    fields: *fields,
+                    order: *order,
+                    g: *g,
+                    s: *s,
+                    gain: vec![U::ONE; fields * order],
+                    shift: vec![U::ZERO; fields * order],
+                },
                 Layer::Tanh => Layer::Tanh,
                 Layer::Relu => Layer::Relu,
                 Layer::PoolHead { fields, order, w, b, plain } => {

@@ -109,6 +109,13 @@ fn layer_dict<'py>(py: Python<'py>, l: &equigym_agents::gradcheck::LayerSpec) ->
             d.set_item("g", g)?;
             d.set_item("s", s)?;
         }
+        L::FieldNorm { fields, order, g, s } => {
+            d.set_item("kind", "field_norm")?;
+            d.set_item("fields", fields)?;
+            d.set_item("order", order)?;
+            d.set_item("g", g)?;
+            d.set_item("s", s)?;
+        }
         L::Tanh => d.set_item("kind", "tanh")?,
         L::Relu => d.set_item("kind", "relu")?,
         L::PoolHead { fields, order, w, b, plain } => {
