@@ -53,7 +53,9 @@ def sb3_steps_per_s(method: str, width: int, steps: int) -> float:
     for _ in range(2048 // 4):
         obs = rng.standard_normal((4, od)).astype(np.float32)
         act = rng.uniform(-1, 1, (4, ad)).astype(np.float32)
-        model.replay_buffer.add(obs, obs, act, -rng.integers(0, 5, 4).astype(np.float32), np.zeros(4), [{} for _ in range(4)])
+        model.replay_buffer.add(
+            obs, obs, act, -rng.integers(0, 5, 4).astype(np.float32), np.zeros(4), [{} for _ in range(4)]
+        )
     model._current_progress_remaining = 1.0
     model.train(gradient_steps=2, batch_size=256)
     t = time.process_time()
@@ -94,7 +96,11 @@ def ddim_chunks_per_s(batch: int, reps: int) -> tuple[float, float, float]:
             f()
         return batch * reps / (time.process_time() - t)
 
-    return (rate(lambda: rust.sample(obs, w)), rate(lambda: rust.sample(obs, w, precision="f64")), rate(lambda: torch_p.sample(obs, w)))
+    return (
+        rate(lambda: rust.sample(obs, w)),
+        rate(lambda: rust.sample(obs, w, precision="f64")),
+        rate(lambda: torch_p.sample(obs, w)),
+    )
 
 
 def main() -> None:
@@ -103,6 +109,7 @@ def main() -> None:
     p.add_argument("--out", default=str(ROOT / "benches" / "results" / "agents.md"))
     a = p.parse_args()
     sb3_steps = 10 if a.quick else 60
+    load_before = Path("/proc/loadavg").read_text().split()[:3]
     r = rust_bench(a.quick)
     lines = [
         "# Rust steering agents vs SB3, one thread",
@@ -115,25 +122,41 @@ def main() -> None:
     ]
     for width, label in ((64, "cpu preset (3 x 64)"), (256, "3 x 256")):
         for method in ("dsrl", "equi", "approx"):
-            key = next((k for k in r if k.startswith(f"{method} ") and (("3x64" in k) if width == 64 else ("3x256" in k))), None)
+            key = next(
+                (k for k in r if k.startswith(f"{method} ") and (("3x64" in k) if width == 64 else ("3x256" in k))),
+                None,
+            )
             rust = r.get(key, float("nan")) if key else float("nan")
             try:
                 sb3 = sb3_steps_per_s(method, width, sb3_steps)
             except ImportError as e:  # escnn missing: the Rust column alone
                 print(f"SB3 {method}: {e}", file=sys.stderr)
                 sb3 = float("nan")
-            lines.append(f"| {method} {label}{key.split(',', 1)[1].split(':')[0] if key and ',' in key else ''} | {rust:.1f} | {sb3:.1f} | {rust / sb3:.1f}x |")
+            lines.append(
+                f"| {method} {label}{key.split(',', 1)[1].split(':')[0] if key and ',' in key else ''} | {rust:.1f} | {sb3:.1f} | {rust / sb3:.1f}x |"
+            )
     lines += ["", "| kernel | GFLOP/s |", "|---|---:|"]
     peak = r.get("f32 FMA peak, one core (GFLOP/s)", float("nan"))
     for k, v in r.items():
         if k.startswith("gemm") or k.startswith("f32 FMA"):
             frac = f" ({100 * v / peak:.0f} % of peak)" if k.startswith("gemm") else ""
             lines.append(f"| {k.replace(' (GFLOP/s)', '')} | {v:.1f}{frac} |")
-    lines += ["", "| DDIM chunks/s (Lift EDP, 5 steps) | Rust f32 | Rust f64 | PyTorch f32 | Rust f32 / PyTorch |", "|---|---:|---:|---:|---:|"]
+    lines += [
+        "",
+        "| DDIM chunks/s (Lift EDP, 5 steps) | Rust f32 | Rust f64 | PyTorch f32 | Rust f32 / PyTorch |",
+        "|---|---:|---:|---:|---:|",
+    ]
     for batch, reps in ((1, 400), (16, 100), (256, 10)):
         reps = max(2, reps // 10) if a.quick else reps
         rf, r64, tf = ddim_chunks_per_s(batch, reps)
-        lines.append(f"| batch {batch} | {rf:,.0f} | {r64:,.0f} | {tf:,.0f} | {rf / tf:.1f}x |")
+        lines.append(f"| batch {batch} | {rf:,.0f} | {r64:,.0f} | {tf:,.0f} | {rf / tf:.2f}x |")
+    load_after = Path("/proc/loadavg").read_text().split()[:3]
+    lines += [
+        "",
+        f"Load average (1, 5, 15 min) when the benchmark started: {', '.join(load_before)}; when it ended: "
+        f"{', '.join(load_after)}. Other load slows both columns alike (CPU time of one thread), so the ratios "
+        "are the figures to compare across runs.",
+    ]
     text = "\n".join(lines) + "\n"
     Path(a.out).write_text(text)
     print(text)

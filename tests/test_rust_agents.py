@@ -168,11 +168,22 @@ def test_run_writes_the_sb3_log_layout_and_is_thread_independent_and_resumable(t
     assert [int(r["env_steps"]) for r in rows] == [16, 64, 128]
     meta = json.loads((run_dir / "run.json").read_text())
     assert meta["agent"] == "rust" and meta["method"] == "equi" and meta["fields"] == 24
+    # The learner's state at each evaluation: same columns as the SB3 runs', one row per
+    # evaluation, the same for any thread count (drawn from its own stream).
+    train = read(run_dir / "train.csv")
+    assert list(train[0]) == ["env_steps", "alpha", "entropy", "edge_fraction", "critic_loss", "target_q", "policy_q"]
+    assert [r["env_steps"] for r in train] == [r["env_steps"] for r in rows]
+    assert all(math.isclose(float(r["alpha"]), 0.2, rel_tol=1e-6) for r in train)  # no gradient step yet
+    assert all(math.isfinite(float(r["entropy"])) and 0 <= float(r["edge_fraction"]) <= 1 for r in train)
+    assert train == read(tmp_path / "b" / "lift" / "equi" / "seed0" / "train.csv")
+    table = steer.diagnose([str(run_dir)])
+    assert "policy entropy" in table and f"| 128 | {float(rows[-1]['success_rate']):.2f} |" in table
     # Started again with more steps it extends the run; with the same steps it only reloads.
     again = steer.run("equi", "lift", 0, 128, tmp_path / "a", threads=1, **SHORT)
     assert strip(again["rows"]) == strip(one["rows"]) and again["params_hash"] == one["params_hash"]
     longer = steer.run("equi", "lift", 0, 192, tmp_path / "a", threads=1, **SHORT)
     assert strip(longer["rows"])[:3] == strip(one["rows"]) and len(longer["rows"]) == 4
+    assert read(run_dir / "train.csv")[:3] == train and len(read(run_dir / "train.csv")) == 4
 
 
 def test_bad_arguments_raise_value_errors(tmp_path):

@@ -37,6 +37,13 @@ def test_run_logs_resumes_and_reports(method, tmp_path):
     steps = [int(r["env_steps"]) for r in second]
     assert steps == sorted(steps) and steps[-1] >= 128 - 8
     assert steps[len(first)] > steps[len(first) - 1]  # no restart from zero
+    intervals = [s // 32 for s in steps]
+    assert len(set(intervals)) == len(intervals)  # one evaluation per interval, across the resume too
+    seconds = [float(r["seconds"]) for r in second]
+    assert seconds[len(first)] >= seconds[len(first) - 1]  # the run's clock continues
+    # The learner's state beside every evaluation, in the Rust agents' columns.
+    train = rows(run_dir / "train.csv")
+    assert list(train[0]) == steer.TRAIN_COLUMNS and [r["env_steps"] for r in train] == [str(s) for s in steps]
     # Base policy success is cached per task folder and appears in the report.
     rate = steer.base_success("lift", out, episodes=2)
     assert 0.0 <= rate <= 1.0 and (out / "lift" / "base.json").exists()

@@ -153,9 +153,11 @@ def sweep(a: argparse.Namespace) -> None:
         raise SystemExit("the sweep needs Ray Tune: pip install 'equigym[sweep]' (or 'ray[tune]')") from e
     out = Path(a.out).resolve()
     sb3_seeds = a.sb3_seeds if a.sb3_seeds is not None else a.seeds
-    # Seed-major, so that early results cover every method.
-    jobs = [{"agent": "rust", "method": m, "seed": s} for s in a.seeds for m in a.methods]
-    jobs += [{"agent": "sb3", "method": m, "seed": s} for s in sb3_seeds for m in (a.sb3 or [])]
+    # Seed-major across both agents, so that early results cover every method of each.
+    jobs = []
+    for s in sorted(set(a.seeds) | set(sb3_seeds)):
+        jobs += [{"agent": "rust", "method": m, "seed": s} for m in a.methods if s in a.seeds]
+        jobs += [{"agent": "sb3", "method": m, "seed": s} for m in (a.sb3 or []) if s in sb3_seeds]
     space = {
         "job": tune.grid_search(jobs),
         "task": tune.grid_search(a.tasks),
@@ -219,6 +221,46 @@ def report(a: argparse.Namespace) -> str:
     return text
 
 
+#: train.csv columns shown by ``diagnose``, with their headers and formats.
+_DIAGNOSTICS = (
+    ("alpha", "entropy coef.", ".3f"),
+    ("entropy", "policy entropy", ".1f"),
+    ("edge_fraction", "at the edge", ".3f"),
+    ("critic_loss", "critic loss", ".2f"),
+    ("policy_q", "Q at the actor's actions", ".1f"),
+)
+
+
+def diagnose(runs: list[str], out: str | None = None) -> str:
+    """One Markdown table per run directory: each evaluation (``log.csv``) beside the learner's
+    state at that point (``train.csv``: what the Rust agents and ``baselines.steer`` record)."""
+    import csv
+
+    def cell(v: str | None, fmt: str) -> str:
+        return "" if v in (None, "", "nan") else format(float(v), fmt)
+
+    lines: list[str] = []
+    for d in map(Path, runs):
+        with open(d / "log.csv", newline="") as f:
+            log = list(csv.DictReader(f))
+        train: dict[str, dict[str, str]] = {}
+        if (d / "train.csv").exists():
+            with open(d / "train.csv", newline="") as f:
+                train = {r["env_steps"]: r for r in csv.DictReader(f)}
+        lines += [f"`{d}`", "", "| env steps | success | mean Q | " + " | ".join(h for _, h, _ in _DIAGNOSTICS) + " |"]
+        lines.append("|" + "---:|" * (3 + len(_DIAGNOSTICS)))
+        for r in log:
+            t = train.get(r["env_steps"], {})
+            cells = [r["env_steps"], cell(r["success_rate"], ".2f"), cell(r["mean_q"], ".1f")]
+            cells += [cell(t.get(k), fmt) for k, _, fmt in _DIAGNOSTICS]
+            lines.append("| " + " | ".join(cells) + " |")
+        lines.append("")
+    text = "\n".join(lines)
+    if out:
+        Path(out).write_text(text)
+    return text
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(
         prog="python -m equigym.steer", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -262,9 +304,14 @@ def main(argv: list[str] | None = None) -> None:
     r.add_argument("--runs", default="runs/sweep/rust", help="Rust runs")
     r.add_argument("--sb3-runs", default=None, help="SB3 runs to show beside them")
     r.add_argument("--out", default="docs/steering/rust")
+    dg = sub.add_parser("diagnose", help="evaluations beside the learner's state (log.csv + train.csv) per run")
+    dg.add_argument("runs", nargs="+", help="run directories (.../<task>/<method>/seed<S>)")
+    dg.add_argument("--out", default=None, help="also write the tables to this Markdown file")
     a = p.parse_args(argv)
     if a.cmd == "report":
         report(a)
+    elif a.cmd == "diagnose":
+        print(diagnose(a.runs, a.out))
     elif a.cmd == "sweep":
         sweep(a)
     else:
