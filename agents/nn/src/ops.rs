@@ -92,46 +92,128 @@ pub const LAYER_NORM_ROW_BLOCK: usize = 8;
 /// LayerNorm over each row of `x` (`rows x n`) into `y`, with gain and shift; keeps the
 /// normalised values `xhat` and `1/std` per row for the backward pass.
 pub fn layer_norm<T: Real>(x: &[T], y: &mut [T], n: usize, gain: &[T], shift: &[T], xhat: &mut [T], rstd: &mut [T]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if crate::has_fast_fma() {
+            // SAFETY: the CPU has the features; the arithmetic is unfused either way.
+            unsafe { layer_norm_avx2(x, y, n, gain, shift, xhat, rstd) };
+            return;
+        }
+    }
+    layer_norm_body(x, y, n, gain, shift, xhat, rstd)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn layer_norm_avx2<T: Real>(
+    x: &[T],
+    y: &mut [T],
+    n: usize,
+    gain: &[T],
+    shift: &[T],
+    xhat: &mut [T],
+    rstd: &mut [T],
+) {
+    layer_norm_body(x, y, n, gain, shift, xhat, rstd)
+}
+
+#[inline(always)]
+fn layer_norm_body<T: Real>(x: &[T], y: &mut [T], n: usize, gain: &[T], shift: &[T], xhat: &mut [T], rstd: &mut [T]) {
     const B: usize = LAYER_NORM_ROW_BLOCK;
+    let rows = rstd.len().min(x.len() / n.max(1));
+    let (gain, shift) = (&gain[..n], &shift[..n]);
+    let mut r0 = 0;
+    while r0 + B <= rows {
+        layer_norm_block::<T, B>(r0, x, y, n, gain, shift, xhat, rstd);
+        r0 += B;
+    }
+    while r0 < rows {
+        layer_norm_block::<T, 1>(r0, x, y, n, gain, shift, xhat, rstd);
+        r0 += 1;
+    }
+}
+
+/// Rows `r0..r0 + R` of [`layer_norm`], their statistics accumulated side by side (a fixed `R`
+/// lets the compiler keep the `R` running sums in registers).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn layer_norm_block<T: Real, const R: usize>(
+    r0: usize,
+    x: &[T],
+    y: &mut [T],
+    n: usize,
+    gain: &[T],
+    shift: &[T],
+    xhat: &mut [T],
+    rstd: &mut [T],
+) {
     let inv_n = T::from_f64(1.0 / n as f64);
     let eps = T::from_f64(LAYER_NORM_EPS);
-    let rows = rstd.len().min(x.len() / n.max(1));
-    let mut r0 = 0;
-    while r0 < rows {
-        let nb = B.min(rows - r0);
-        let mut mean = [T::ZERO; B];
-        for j in 0..n {
-            for b in 0..nb {
-                mean[b] += x[(r0 + b) * n + j];
-            }
+    let src: [&[T]; R] = std::array::from_fn(|b| &x[(r0 + b) * n..(r0 + b + 1) * n]);
+    let mut mean = [T::ZERO; R];
+    for j in 0..n {
+        for b in 0..R {
+            mean[b] += src[b][j];
         }
-        for m in mean.iter_mut() {
-            *m *= inv_n;
+    }
+    for m in mean.iter_mut() {
+        *m *= inv_n;
+    }
+    let mut var = [T::ZERO; R];
+    for j in 0..n {
+        for b in 0..R {
+            let d = src[b][j] - mean[b];
+            var[b] += d * d;
         }
-        let mut var = [T::ZERO; B];
-        for j in 0..n {
-            for b in 0..nb {
-                let d = x[(r0 + b) * n + j] - mean[b];
-                var[b] += d * d;
-            }
+    }
+    for b in 0..R {
+        let r = T::ONE / (var[b] * inv_n + eps).sqrt();
+        rstd[r0 + b] = r;
+        let at = (r0 + b) * n;
+        let (out, xh) = (&mut y[at..at + n], &mut xhat[at..at + n]);
+        for (((v, o), h), (g, s)) in src[b].iter().zip(out.iter_mut()).zip(xh.iter_mut()).zip(gain.iter().zip(shift)) {
+            *h = (*v - mean[b]) * r;
+            *o = *h * *g + *s;
         }
-        for b in 0..nb {
-            let r = T::ONE / (var[b] * inv_n + eps).sqrt();
-            rstd[r0 + b] = r;
-            let at = (r0 + b) * n;
-            let (row, out, xh) = (&x[at..at + n], &mut y[at..at + n], &mut xhat[at..at + n]);
-            for (((v, o), h), (g, s)) in row.iter().zip(out.iter_mut()).zip(xh.iter_mut()).zip(gain.iter().zip(shift)) {
-                *h = (*v - mean[b]) * r;
-                *o = *h * *g + *s;
-            }
-        }
-        r0 += nb;
     }
 }
 
 /// Backward through [`layer_norm`]: `dy` (rows x n) becomes `dx` in place; gain and shift
 /// gradients are added (rows in order) when given.
 pub fn layer_norm_backward<T: Real>(
+    dy: &mut [T],
+    n: usize,
+    gain: &[T],
+    xhat: &[T],
+    rstd: &[T],
+    grads: Option<(&mut [T], &mut [T])>,
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if crate::has_fast_fma() {
+            // SAFETY: the CPU has the features; the arithmetic is unfused either way.
+            unsafe { layer_norm_backward_avx2(dy, n, gain, xhat, rstd, grads) };
+            return;
+        }
+    }
+    layer_norm_backward_body(dy, n, gain, xhat, rstd, grads)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn layer_norm_backward_avx2<T: Real>(
+    dy: &mut [T],
+    n: usize,
+    gain: &[T],
+    xhat: &[T],
+    rstd: &[T],
+    grads: Option<(&mut [T], &mut [T])>,
+) {
+    layer_norm_backward_body(dy, n, gain, xhat, rstd, grads)
+}
+
+#[inline(always)]
+fn layer_norm_backward_body<T: Real>(
     dy: &mut [T],
     n: usize,
     gain: &[T],
@@ -150,27 +232,49 @@ pub fn layer_norm_backward<T: Real>(
             }
         }
     }
+    let gain = &gain[..n];
     let mut r0 = 0;
+    while r0 + B <= rows {
+        layer_norm_backward_block::<T, B>(r0, dy, n, gain, xhat, rstd, inv_n);
+        r0 += B;
+    }
     while r0 < rows {
-        let nb = B.min(rows - r0);
-        let (mut mean_d, mut mean_dx) = ([T::ZERO; B], [T::ZERO; B]);
-        for (j, g) in gain.iter().enumerate().take(n) {
-            for b in 0..nb {
-                let at = (r0 + b) * n + j;
-                let d = dy[at] * *g;
+        layer_norm_backward_block::<T, 1>(r0, dy, n, gain, xhat, rstd, inv_n);
+        r0 += 1;
+    }
+}
+
+/// Rows `r0..r0 + R` of [`layer_norm_backward`]'s input gradient, their two statistics
+/// accumulated side by side.
+#[inline(always)]
+fn layer_norm_backward_block<T: Real, const R: usize>(
+    r0: usize,
+    dy: &mut [T],
+    n: usize,
+    gain: &[T],
+    xhat: &[T],
+    rstd: &[T],
+    inv_n: T,
+) {
+    let (mut mean_d, mut mean_dx) = ([T::ZERO; R], [T::ZERO; R]);
+    {
+        let d_rows: [&[T]; R] = std::array::from_fn(|b| &dy[(r0 + b) * n..(r0 + b + 1) * n]);
+        let x_rows: [&[T]; R] = std::array::from_fn(|b| &xhat[(r0 + b) * n..(r0 + b + 1) * n]);
+        for (j, g) in gain.iter().enumerate() {
+            for b in 0..R {
+                let d = d_rows[b][j] * *g;
                 mean_d[b] += d;
-                mean_dx[b] += d * xhat[at];
+                mean_dx[b] += d * x_rows[b][j];
             }
         }
-        for b in 0..nb {
-            let (md, mdx, r) = (mean_d[b] * inv_n, mean_dx[b] * inv_n, rstd[r0 + b]);
-            let at = (r0 + b) * n;
-            for j in 0..n {
-                let d = dy[at + j] * gain[j];
-                dy[at + j] = (d - md - xhat[at + j] * mdx) * r;
-            }
+    }
+    for b in 0..R {
+        let (md, mdx, r) = (mean_d[b] * inv_n, mean_dx[b] * inv_n, rstd[r0 + b]);
+        let at = (r0 + b) * n;
+        for ((v, h), g) in dy[at..at + n].iter_mut().zip(&xhat[at..at + n]).zip(gain) {
+            let d = *v * *g;
+            *v = (d - md - *h * mdx) * r;
         }
-        r0 += nb;
     }
 }
 
