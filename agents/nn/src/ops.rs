@@ -136,7 +136,7 @@ fn layer_norm_body<T: Real>(x: &[T], y: &mut [T], n: usize, gain: &[T], shift: &
 /// Rows `r0..r0 + R` of [`layer_norm`], their statistics accumulated side by side (a fixed `R`
 /// lets the compiler keep the `R` running sums in registers).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_arguments, clippy::needless_range_loop)] // j indexes R rows at once
 fn layer_norm_block<T: Real, const R: usize>(
     r0: usize,
     x: &[T],
