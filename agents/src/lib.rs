@@ -10,11 +10,12 @@
 //! - [`fourier`]: regular -> regular layers in the Fourier basis (14 instead of 64 multiply-adds
 //!   per field pair), used by Equi-DSRL's hidden layers;
 //! - [`net`]: networks over one parameter vector (plain, equivariant, RPP layers; LayerNorm,
-//!   Tanh, ReLU; the invariant pooling head);
+//!   plain or field-tied; Tanh, ReLU; the invariant pooling head);
 //! - [`models`]: each method's actor and twin critics, parameter-matched as the SB3 baselines;
 //! - [`sac`]: the SAC update as SB3 runs it;
 //! - [`replay`], [`rng`] (seeded streams with documented tags);
-//! - [`run`]: the training loop with evaluation, `log.csv`, checkpoints and resume.
+//! - [`run`]: the training loop with evaluation, `log.csv`, `train.csv` (the learner's state),
+//!   checkpoints and resume.
 //!
 //! The `steer` binary and `python -m equigym.steer` are the command-line entry points.
 
