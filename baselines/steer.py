@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import json
 import time
 from pathlib import Path
@@ -71,8 +72,11 @@ class LatentSAC(SAC):
         return super()._sample_action(learning_starts, action_noise, n_envs)
 
 
+@functools.cache
 def equi_fields_matching(task: str, target: int, layers: int, residual: bool) -> int:
-    """Hidden regular fields whose actor + critic parameter count is closest to ``target``."""
+    """Hidden regular fields whose actor + critic parameter count is closest to ``target``.
+    Cached: it builds escnn nets for every candidate, and a sweep trial rebuilds its agent at
+    every evaluation interval."""
     obs_space = gymnasium.spaces.Box(-np.inf, np.inf, (equigym.Symmetry(task).dim("observation"),), np.float32)
     lat_space = gymnasium.spaces.Box(-1.5, 1.5, (40,), np.float32)
     best, best_gap = 8, None
