@@ -92,28 +92,6 @@ pub const LAYER_NORM_ROW_BLOCK: usize = 8;
 /// LayerNorm over each row of `x` (`rows x n`) into `y`, with gain and shift; keeps the
 /// normalised values `xhat` and `1/std` per row for the backward pass.
 pub fn layer_norm<T: Real>(x: &[T], y: &mut [T], n: usize, gain: &[T], shift: &[T], xhat: &mut [T], rstd: &mut [T]) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if crate::has_fast_fma() {
-            // SAFETY: the CPU has the features; the arithmetic is unfused either way.
-            unsafe { layer_norm_avx2(x, y, n, gain, shift, xhat, rstd) };
-            return;
-        }
-    }
-    layer_norm_body(x, y, n, gain, shift, xhat, rstd)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn layer_norm_avx2<T: Real>(
-    x: &[T],
-    y: &mut [T],
-    n: usize,
-    gain: &[T],
-    shift: &[T],
-    xhat: &mut [T],
-    rstd: &mut [T],
-) {
     layer_norm_body(x, y, n, gain, shift, xhat, rstd)
 }
 
@@ -181,27 +159,6 @@ fn layer_norm_block<T: Real, const R: usize>(
 /// Backward through [`layer_norm`]: `dy` (rows x n) becomes `dx` in place; gain and shift
 /// gradients are added (rows in order) when given.
 pub fn layer_norm_backward<T: Real>(
-    dy: &mut [T],
-    n: usize,
-    gain: &[T],
-    xhat: &[T],
-    rstd: &[T],
-    grads: Option<(&mut [T], &mut [T])>,
-) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if crate::has_fast_fma() {
-            // SAFETY: the CPU has the features; the arithmetic is unfused either way.
-            unsafe { layer_norm_backward_avx2(dy, n, gain, xhat, rstd, grads) };
-            return;
-        }
-    }
-    layer_norm_backward_body(dy, n, gain, xhat, rstd, grads)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn layer_norm_backward_avx2<T: Real>(
     dy: &mut [T],
     n: usize,
     gain: &[T],
