@@ -94,11 +94,6 @@ pub const LAYER_NORM_ROW_BLOCK: usize = 8;
 /// LayerNorm over each row of `x` (`rows x n`) into `y`, with gain and shift; keeps the
 /// normalised values `xhat` and `1/std` per row for the backward pass.
 pub fn layer_norm<T: Real>(x: &[T], y: &mut [T], n: usize, gain: &[T], shift: &[T], xhat: &mut [T], rstd: &mut [T]) {
-    layer_norm_body(x, y, n, gain, shift, xhat, rstd)
-}
-
-#[inline(always)]
-fn layer_norm_body<T: Real>(x: &[T], y: &mut [T], n: usize, gain: &[T], shift: &[T], xhat: &mut [T], rstd: &mut [T]) {
     const B: usize = LAYER_NORM_ROW_BLOCK;
     let rows = rstd.len().min(x.len() / n.max(1));
     let (gain, shift) = (&gain[..n], &shift[..n]);
@@ -161,18 +156,6 @@ fn layer_norm_block<T: Real, const R: usize>(
 /// Backward through [`layer_norm`]: `dy` (rows x n) becomes `dx` in place; gain and shift
 /// gradients are added (rows in order) when given.
 pub fn layer_norm_backward<T: Real>(
-    dy: &mut [T],
-    n: usize,
-    gain: &[T],
-    xhat: &[T],
-    rstd: &[T],
-    grads: Option<(&mut [T], &mut [T])>,
-) {
-    layer_norm_backward_body(dy, n, gain, xhat, rstd, grads)
-}
-
-#[inline(always)]
-fn layer_norm_backward_body<T: Real>(
     dy: &mut [T],
     n: usize,
     gain: &[T],
