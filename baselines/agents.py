@@ -108,7 +108,7 @@ class _FieldNorm(nn.Module):
 
     The row's mean and variance are invariant under the cyclic shifts within fields and a tied
     gain and shift commute with them, so the layer is exactly equivariant (DSRL's LayerNorm made
-    equivariant; the Rust agents' ``FieldNorm``)."""
+    equivariant; the Rust agents' ``Layer::Norm``)."""
 
     def __init__(self, ftype, order: int):
         super().__init__()

@@ -47,10 +47,7 @@ def net_forward(spec: dict, p: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
                 W = W + p[pw : pw + n_in * n_out]
                 bias = bias + p[pb : pb + n_out]
             x = x @ W.view(n_in, n_out) + bias
-        elif k == "layer_norm":
-            n, g, s = L["n"], L["g"], L["s"]
-            x = torch.nn.functional.layer_norm(x, (n,), p[g : g + n], p[s : s + n], eps=1e-5)
-        elif k == "field_norm":
+        elif k == "norm":
             f, o, g, s = L["fields"], L["order"], L["g"], L["s"]
             gain, shift = p[g : g + f].repeat_interleave(o), p[s : s + f].repeat_interleave(o)
             x = torch.nn.functional.layer_norm(x, (f * o,), gain, shift, eps=1e-5)

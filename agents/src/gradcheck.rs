@@ -35,14 +35,9 @@ pub enum LayerSpec {
         bias_pidx: Vec<u32>,
         plain: Option<(usize, usize)>,
     },
-    LayerNorm {
-        n: usize,
-        g: usize,
-        s: usize,
-    },
     /// LayerNorm over `fields x order` units, gain `params[g + f]` and shift `params[s + f]` for
-    /// every unit of field `f`.
-    FieldNorm {
+    /// every unit of group `f` (`order` 1: a plain LayerNorm).
+    Norm {
         fields: usize,
         order: usize,
         g: usize,
@@ -86,10 +81,7 @@ pub fn describe(net: &Net<f64>) -> Vec<LayerSpec> {
                     plain: *plain,
                 },
             },
-            Layer::LayerNorm { n, g, s } => LayerSpec::LayerNorm { n: *n, g: *g, s: *s },
-            Layer::FieldNorm { fields, order, g, s, .. } => {
-                LayerSpec::FieldNorm { fields: *fields, order: *order, g: *g, s: *s }
-            }
+            Layer::Norm { fields, order, g, s, .. } => LayerSpec::Norm { fields: *fields, order: *order, g: *g, s: *s },
             Layer::Tanh => LayerSpec::Tanh,
             Layer::Relu => LayerSpec::Relu,
             Layer::PoolHead { fields, order, w, b, plain } => {

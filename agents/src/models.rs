@@ -6,7 +6,7 @@
 //!   dimension (log-std clamped to [-20, 2], SB3's range), elementwise tanh squash.
 //! - **Equi-DSRL**: C8-equivariant trunks of regular fields, each linear layer followed by a
 //!   field-tied LayerNorm and Tanh (DSRL's recipe made equivariant: one gain and shift per
-//!   field; see [`crate::net::Layer::FieldNorm`]). Without the normalisation, ReLU trunks let the
+//!   field; see [`crate::net::Layer::Norm`]). Without the normalisation, ReLU trunks let the
 //!   critics diverge at UTD 4 on the articulated arm: once the policy's entropy collapsed
 //!   (8k env steps, Lift, seed 1), mean Q climbed to +1,750 where true soft returns are below 0
 //!   (`train.csv` of that run, docs/steering.md). The actor head maps onto

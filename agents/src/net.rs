@@ -1,7 +1,7 @@
 //! Feed-forward networks over one flat parameter vector: plain and equivariant linear layers
 //! (optionally with a residual plain path, RPP), LayerNorm (plain, or field-tied for regular
-//! fields), Tanh, ReLU, and the invariant
-//! group-pooling head of a critic. Forward keeps a [`Tape`]; backward adds parameter gradients
+//! fields: one layer, [`Layer::Norm`]), Tanh, ReLU, and the invariant group-pooling head of a
+//! critic. Forward keeps a [`Tape`]; backward adds parameter gradients
 //! into a flat gradient vector and returns the input gradient when asked.
 //!
 //! Parameters live in `Net::params`; [`Net::expand`] turns them into the dense matrices the
@@ -48,18 +48,14 @@ pub struct Linear<T> {
 #[derive(Clone, Debug)]
 pub enum Layer<T> {
     Linear(Linear<T>),
-    /// LayerNorm over `n` features, gain at `g`, shift at `s`.
-    LayerNorm {
-        n: usize,
-        g: usize,
-        s: usize,
-    },
-    /// LayerNorm over all `fields x order` units of a row of regular fields, with one gain and
-    /// one shift per field (at `g` and `s`, `fields` each). The row's mean and variance are
-    /// invariant under the group's cyclic shifts within fields and the tied gain and shift
-    /// commute with them, so the layer is exactly equivariant. `gain` and `shift` hold the
-    /// per-unit expansion (refreshed by [`Net::expand`]).
-    FieldNorm {
+    /// LayerNorm over all `fields x order` units of a row, with one gain and one shift per
+    /// group of `order` consecutive units (at `g` and `s`, `fields` each). `order` 1 is the
+    /// plain LayerNorm (one gain and shift per feature). Over regular fields (`order` = the
+    /// group's order) it is the field-tied norm: the row's mean and variance are invariant under
+    /// the group's cyclic shifts within fields and the tied gain and shift commute with them, so
+    /// the layer is exactly equivariant. `gain` and `shift` hold the per-unit expansion
+    /// (refreshed by [`Net::expand`]).
+    Norm {
         fields: usize,
         order: usize,
         g: usize,
@@ -216,12 +212,9 @@ impl<'a, T: Real> NetBuilder<'a, T> {
         self
     }
 
-    pub fn layer_norm(mut self) -> Self {
-        let n = self.width;
-        let g = self.alloc_const(n, 1.0, 0.0);
-        let s = self.alloc_const(n, 0.0, 0.0);
-        self.net.layers.push(Layer::LayerNorm { n, g, s });
-        self
+    /// A plain LayerNorm over the current features (gain 1, shift 0, no weight decay).
+    pub fn layer_norm(self) -> Self {
+        self.field_norm(1, 0.0)
     }
 
     /// A field-tied LayerNorm over the current regular fields of size `order` (gain 1, shift 0),
@@ -233,7 +226,7 @@ impl<'a, T: Real> NetBuilder<'a, T> {
         let g = self.alloc_const(fields, 1.0, decay);
         let s = self.alloc_const(fields, 0.0, decay);
         let (gain, shift) = (vec![T::ONE; n], vec![T::ZERO; n]);
-        self.net.layers.push(Layer::FieldNorm { fields, order, g, s, gain, shift });
+        self.net.layers.push(Layer::Norm { fields, order, g, s, gain, shift });
         self
     }
 
@@ -292,7 +285,7 @@ impl<T: Real> Net<T> {
                 c.expand(params);
                 continue;
             }
-            if let Layer::FieldNorm { order, g, s, gain, shift, .. } = layer {
+            if let Layer::Norm { order, g, s, gain, shift, .. } = layer {
                 for (j, (gj, sj)) in gain.iter_mut().zip(shift.iter_mut()).enumerate() {
                     *gj = params[*g + j / *order];
                     *sj = params[*s + j / *order];
@@ -352,14 +345,7 @@ impl<T: Real> Net<T> {
                     gemm(rows, lin.n_out, lin.n_in, input, Trans::N, &lin.wt, out, true);
                     width = lin.n_out;
                 }
-                Layer::LayerNorm { n, g, s } => {
-                    ops::resize_for_overwrite(out, input.len());
-                    let aux = &mut tape.aux[l];
-                    aux.resize(rows * n + rows, T::ZERO);
-                    let (xhat, rstd) = aux.split_at_mut(rows * n);
-                    ops::layer_norm(input, out, *n, &self.params[*g..*g + n], &self.params[*s..*s + n], xhat, rstd);
-                }
-                Layer::FieldNorm { fields, order, gain, shift, .. } => {
+                Layer::Norm { fields, order, gain, shift, .. } => {
                     let n = fields * order;
                     ops::resize_for_overwrite(out, input.len());
                     let aux = &mut tape.aux[l];
@@ -470,27 +456,14 @@ impl<T: Real> Net<T> {
                         std::mem::swap(d, next);
                     }
                 }
-                Layer::LayerNorm { n, g, s } => {
-                    let aux = &tape.aux[l];
-                    let (xhat, rstd) = aux.split_at(rows * n);
-                    let gain = &self.params[*g..*g + n];
-                    match grads.as_deref_mut() {
-                        Some(gr) => {
-                            // gain and shift are adjacent (g, then s = g + n)
-                            debug_assert_eq!(*s, *g + n);
-                            let (dg, ds) = gr[*g..*s + n].split_at_mut(*n);
-                            ops::layer_norm_backward(d, *n, gain, xhat, rstd, Some((dg, ds)));
-                        }
-                        None => ops::layer_norm_backward(d, *n, gain, xhat, rstd, None),
-                    }
-                }
-                Layer::FieldNorm { fields, order, g, s, gain, .. } => {
+                Layer::Norm { fields, order, g, s, gain, .. } => {
                     let n = fields * order;
                     let aux = &tape.aux[l];
                     let (xhat, rstd) = aux.split_at(rows * n);
                     match grads.as_deref_mut() {
                         Some(gr) => {
                             // per-unit gradients first, then each field's sum over its units
+                            // (bitwise the direct sum for order 1: `grads` start at zero)
                             scratch.clear();
                             scratch.resize(2 * n, T::ZERO);
                             let (dg, ds) = scratch.split_at_mut(n);
@@ -581,8 +554,7 @@ impl<T: Real> Net<T> {
                     w: vec![U::ZERO; lin.w.len()],
                     bias: vec![U::ZERO; lin.bias.len()],
                 }),
-                Layer::LayerNorm { n, g, s } => Layer::LayerNorm { n: *n, g: *g, s: *s },
-                Layer::FieldNorm { fields, order, g, s, .. } => Layer::FieldNorm {
+                Layer::Norm { fields, order, g, s, .. } => Layer::Norm {
                     fields: *fields,
                     order: *order,
                     g: *g,

@@ -103,14 +103,8 @@ fn layer_dict<'py>(py: Python<'py>, l: &equigym_agents::gradcheck::LayerSpec) ->
             d.set_item("bias_pidx", bias_pidx.clone())?;
             d.set_item("plain", *plain)?;
         }
-        L::LayerNorm { n, g, s } => {
-            d.set_item("kind", "layer_norm")?;
-            d.set_item("n", n)?;
-            d.set_item("g", g)?;
-            d.set_item("s", s)?;
-        }
-        L::FieldNorm { fields, order, g, s } => {
-            d.set_item("kind", "field_norm")?;
+        L::Norm { fields, order, g, s } => {
+            d.set_item("kind", "norm")?;
             d.set_item("fields", fields)?;
             d.set_item("order", order)?;
             d.set_item("g", g)?;
