@@ -1,9 +1,11 @@
 //! A self-contained SAC gradient case in f64 for parity tests against an independent
 //! implementation (the Python test rebuilds every layer and loss in PyTorch from this
-//! description and compares gradients).
+//! description and compares gradients). Everything here derives `Serialize`, so the binding
+//! hands it to Python as plain dicts and lists (layers tagged by `kind`).
 
 use equigym_envs::TaskOptions;
 use equigym_wrappers::{Group, TaskSymmetry};
+use serde::Serialize;
 
 use crate::error::Result;
 use crate::models::{Arch, Method, Models, Squash, GROUP_ORDER};
@@ -13,7 +15,8 @@ use crate::rng::{Rng, Stream};
 use crate::sac::{actor_loss_grad, alpha_loss_grad, concat_rows, critic_loss_grad, soft_target, ActorSample, Buffers};
 
 /// One layer, with parameter offsets into its net's flat vector.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
 pub enum LayerSpec {
     Dense {
         n_in: usize,
@@ -95,13 +98,27 @@ pub fn describe(net: &Net<f64>) -> Vec<LayerSpec> {
 /// The radial squash's rho1 pairs and rho0 indices.
 pub type RadialFields = (Vec<(usize, usize)>, Vec<usize>);
 
+/// A network: its layers and its flat parameter vector.
+#[derive(Clone, Debug, Serialize)]
+pub struct NetSpec {
+    pub layers: Vec<LayerSpec>,
+    pub params: Vec<f64>,
+}
+
+impl NetSpec {
+    fn of(net: &Net<f64>) -> Self {
+        NetSpec { layers: describe(net), params: net.params.clone() }
+    }
+}
+
 /// Everything a parity test needs: networks, inputs, noise, and Rust's losses and gradients.
+#[derive(Clone, Debug, Serialize)]
 pub struct GradCase {
     pub obs_dim: usize,
     pub latent_dim: usize,
     pub rows: usize,
-    pub actor: (Vec<LayerSpec>, Vec<f64>),
-    pub critics: [(Vec<LayerSpec>, Vec<f64>); 2],
+    pub actor: NetSpec,
+    pub critics: [NetSpec; 2],
     pub log_std_index: Vec<usize>,
     pub log_std_range: (f64, f64),
     /// None: elementwise tanh; Some((pairs, singles)): radial squash.
@@ -173,11 +190,8 @@ pub fn grad_case(method: Method, task: &str, seed: u64, rows: usize) -> Result<G
         obs_dim: od,
         latent_dim: ad,
         rows,
-        actor: (describe(&m.actor), m.actor.params.clone()),
-        critics: [
-            (describe(&m.critics[0]), m.critics[0].params.clone()),
-            (describe(&m.critics[1]), m.critics[1].params.clone()),
-        ],
+        actor: NetSpec::of(&m.actor),
+        critics: [NetSpec::of(&m.critics[0]), NetSpec::of(&m.critics[1])],
         log_std_index: m.head.log_std_index.clone(),
         log_std_range: m.head.log_std_range,
         radial,
