@@ -171,16 +171,20 @@ pub fn soft_target<T: Real>(
 }
 
 /// One critic's loss `0.5 mean_r (Q(x_r) - y_r)^2` (the SB3 critic loss is the sum over the
-/// twins); its parameter gradient is added into `grads`.
-pub fn critic_loss_grad<T: Real>(critic: &Net<T>, x: &[T], y: &[T], grads: &mut [T], buf: &mut Buffers<T>) -> f64 {
+/// twins), forward only; the critic's outputs stay on `tape`.
+pub fn critic_loss<T: Real>(critic: &Net<T>, x: &[T], y: &[T], tape: &mut Tape<T>) -> f64 {
     let b = y.len();
-    let inv_b = T::from_f64(1.0 / b as f64);
-    let tape = &mut buf.tapes[0];
     critic.forward(x, b, tape);
-    let q = tape.output();
+    tape.output().iter().zip(y).map(|(q, y)| 0.5 * (q.to_f64() - y.to_f64()).powi(2)).sum::<f64>() / b as f64
+}
+
+/// [`critic_loss`], its parameter gradient added into `grads`.
+pub fn critic_loss_grad<T: Real>(critic: &Net<T>, x: &[T], y: &[T], grads: &mut [T], buf: &mut Buffers<T>) -> f64 {
+    let inv_b = T::from_f64(1.0 / y.len() as f64);
+    let tape = &mut buf.tapes[0];
+    let loss = critic_loss(critic, x, y, tape);
     buf.dq.clear();
-    buf.dq.extend(q.iter().zip(y).map(|(q, y)| (*q - *y) * inv_b));
-    let loss = q.iter().zip(y).map(|(q, y)| 0.5 * (q.to_f64() - y.to_f64()).powi(2)).sum::<f64>() / b as f64;
+    buf.dq.extend(tape.output().iter().zip(y).map(|(q, y)| (*q - *y) * inv_b));
     critic.backward(tape, &buf.dq, Some(grads), false, &mut buf.ws);
     loss
 }
@@ -394,12 +398,7 @@ impl<T: Real> Sac<T> {
         let mut x = Vec::new();
         concat_rows(&batch.obs, od, &batch.act, ad, b, &mut x);
         let mut tape = Tape::default();
-        let mut critic_loss = 0.0;
-        for c in &self.critics {
-            c.forward(&x, b, &mut tape);
-            critic_loss +=
-                0.5 * mean(&mut tape.output().iter().zip(&y).map(|(q, y)| (q.to_f64() - y.to_f64()).powi(2)));
-        }
+        let critic_loss: f64 = self.critics.iter().map(|c| critic_loss(c, &x, &y, &mut tape)).sum();
         let edge: usize = s1.a.chunks(ad).map(|a| self.head.squash.at_edge(a, EDGE)).sum();
         Diagnostics {
             alpha: alpha.to_f64(),
