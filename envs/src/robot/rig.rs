@@ -492,22 +492,11 @@ impl RobotRig {
     /// pressed onto the table by the 87 N m shoulder dragged a 15 g finger up to 56 mm past its
     /// travel along a tilted axis (`examples/physics_sweep.rs`). Returns whether anything moved.
     pub fn enforce_position_limits(&self, world: &mut PhysicsWorld) -> bool {
-        let model = self.model.clone();
-        let mut bounds: Vec<(usize, f64, f64, f64)> = Vec::with_capacity(self.dof() + 2);
-        let mut q = vec![0.0; self.dof()];
-        self.joint_positions(world, &mut q);
-        if self.joint_limits {
-            for (k, j) in model.joints.iter().enumerate() {
-                bounds.push((self.arm_dofs[k], q[k], j.lower, j.upper));
-            }
-        }
-        let fingers = self.finger_positions(world);
-        for ((dof, x), f) in self.finger_dofs.iter().zip(fingers).zip(&model.fingers) {
-            bounds.push((*dof, x, f.lower, f.upper));
-        }
-        if bounds.iter().all(|(_, x, lo, hi)| x >= lo && x <= hi) {
+        // The common case (everything inside) allocates nothing.
+        if self.limited_coordinates(world).all(|(_, x, lo, hi)| x >= lo && x <= hi) {
             return false;
         }
+        let bounds: Vec<_> = self.limited_coordinates(world).collect();
         let PhysicsWorld { multibody_joints, bodies, .. } = world;
         let Some((mb, _)) = multibody_joints.get_mut(self.arm_joints[0]) else { return false };
         let mut disp = vec![0.0f32; mb.ndofs()];
@@ -526,6 +515,15 @@ impl RobotRig {
         mb.forward_kinematics(bodies, false);
         mb.update_rigid_bodies(bodies, false);
         true
+    }
+
+    /// `(multibody dof, position, lower, upper)` of every coordinate with a position limit: the
+    /// arm joints (when joint limits apply) and the fingers.
+    fn limited_coordinates<'a>(&'a self, world: &'a PhysicsWorld) -> impl Iterator<Item = (usize, f64, f64, f64)> + 'a {
+        let arm = self.arm_joints.iter().zip(&self.arm_dofs).zip(&self.model.joints).filter(|_| self.joint_limits);
+        let arm = arm.map(move |((h, d), j)| (*d, self.coordinate(world, *h, true), j.lower, j.upper));
+        let fingers = self.finger_joints.iter().zip(&self.finger_dofs).zip(&self.model.fingers);
+        arm.chain(fingers.map(move |((h, d), f)| (*d, self.coordinate(world, *h, false), f.lower, f.upper)))
     }
 
     /// All colliders of the robot: links, hand and fingers.
