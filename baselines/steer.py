@@ -3,7 +3,6 @@
 CSV logs and a report that writes the paper's Table 1 and plots.
 
     python -m baselines.steer run --method equi --task lift --seed 0 --steps 20000
-    python -m baselines.steer sweep --methods dsrl equi approx --tasks lift --seeds 0 1 2 --steps 20000 --workers 2
     python -m baselines.steer base --task lift          # the base policy alone, N(0, I) noise
     python -m baselines.steer report --runs runs/steer --out docs/steering
 
@@ -20,6 +19,8 @@ finishes in under an hour on 2 cores
 every weight into an 8 x 8 block); ``--preset paper`` uses 3 x 2048 and UTD 30 (Lift) / 20
 (Square), which needs a GPU. A killed run resumes from its last checkpoint (model and replay
 buffer) when started again with the same arguments; a larger ``--steps`` extends a finished run.
+Sweeps over methods x tasks x seeds run as Ray Tune trials: ``python -m equigym.steer sweep --sb3
+dsrl equi approx --methods`` (SB3 only; add Rust methods after ``--methods`` to run both sides).
 """
 
 from __future__ import annotations
@@ -365,98 +366,22 @@ def run(
     return run_dir
 
 
-def _run_args(a: argparse.Namespace, method: str, task: str, seed: int) -> list[str]:
-    args = [
-        "run",
-        "--method",
-        method,
-        "--task",
-        task,
-        "--seed",
-        str(seed),
-        "--steps",
-        str(a.steps),
-        "--out",
-        a.out,
-        "--preset",
-        a.preset,
-        "--eval-every",
-        str(a.eval_every),
-        "--eval-episodes",
-        str(a.eval_episodes),
-        "--no-progress",
-    ]
-    if a.no_joint_limits:
-        args.append("--no-joint-limits")
-    if a.policy:
-        args += ["--policy", a.policy]
-    if a.ent_init is not None:
-        args += ["--ent-init", str(a.ent_init)]
-    return args
-
-
-def sweep(a: argparse.Namespace) -> None:
-    """Every method x task x seed, ``--workers`` runs at a time (one process and one torch thread
-    each), resuming finished or killed runs from their checkpoints."""
-    import subprocess
-    import sys
-    from concurrent.futures import ThreadPoolExecutor
-
-    from tqdm import tqdm
-
-    jobs = [
-        (m, t, s) for t in a.tasks for s in a.seeds for m in a.methods
-    ]  # seed-major: early results cover every method
-    for t in a.tasks:
-        rate = base_success(t, a.out, a.base_episodes, not a.no_joint_limits, a.policy)
-        print(f"{t}: base policy success {rate:.3f} over {a.base_episodes} episodes")
-    bar = tqdm(total=len(jobs), desc="runs", unit="run")
-
-    def one(job):
-        m, t, s = job
-        log = Path(a.out) / f"{t}{'' if not a.no_joint_limits else '-nolimits'}" / m / f"seed{s}" / "stdout.txt"
-        log.parent.mkdir(parents=True, exist_ok=True)
-        with open(log, "a") as f:
-            rc = subprocess.call(
-                [sys.executable, "-m", "baselines.steer", *_run_args(a, m, t, s)], stdout=f, stderr=subprocess.STDOUT
-            )
-        bar.update(1)
-        bar.write(f"{t}/{m}/seed{s}: {'done' if rc == 0 else f'failed (exit {rc}, see {log})'}")
-        return rc
-
-    with ThreadPoolExecutor(a.workers) as pool:
-        codes = list(pool.map(one, jobs))
-    bar.close()
-    if any(codes):
-        raise SystemExit(f"{sum(c != 0 for c in codes)} of {len(jobs)} runs failed")
-
-
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
-    for name in ("run", "sweep"):
-        s = sub.add_parser(name)
-        if name == "run":
-            s.add_argument("--method", choices=METHODS, required=True)
-            s.add_argument("--task", default="lift", choices=sorted(LATENT_IDS))
-            s.add_argument("--seed", type=int, default=0)
-            s.add_argument("--no-progress", action="store_true")
-        else:
-            s.add_argument("--methods", nargs="+", choices=METHODS, default=["dsrl", "equi", "approx"])
-            s.add_argument("--tasks", nargs="+", default=["lift"], choices=sorted(LATENT_IDS))
-            s.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
-            s.add_argument("--workers", type=int, default=2, help="runs at a time (one core each)")
-            s.add_argument("--base-episodes", type=int, default=100, help="episodes for the base policy's success")
-        s.add_argument("--steps", type=int, default=20_000, help="primitive environment steps per run")
-        s.add_argument("--out", default="runs/steer")
-        s.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
-        s.add_argument(
-            "--ent-init", type=float, default=None, help="initial entropy coefficient (default: the preset's)"
-        )
-        s.add_argument("--no-joint-limits", action="store_true")
-        s.add_argument("--eval-every", type=int, default=2000)
-        s.add_argument("--eval-episodes", type=int, default=50)
-        s.add_argument("--policy", default=None, help="EDP file (default: the shipped one)")
+    s = sub.add_parser("run")
+    s.add_argument("--method", choices=METHODS, required=True)
+    s.add_argument("--task", default="lift", choices=sorted(LATENT_IDS))
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--no-progress", action="store_true")
+    s.add_argument("--steps", type=int, default=20_000, help="primitive environment steps per run")
+    s.add_argument("--out", default="runs/steer")
+    s.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
+    s.add_argument("--ent-init", type=float, default=None, help="initial entropy coefficient (default: the preset's)")
+    s.add_argument("--no-joint-limits", action="store_true")
+    s.add_argument("--eval-every", type=int, default=2000)
+    s.add_argument("--eval-episodes", type=int, default=50)
+    s.add_argument("--policy", default=None, help="EDP file (default: the shipped one)")
     b = sub.add_parser("base", help="success of the base policy alone (latent noise N(0, I))")
     b.add_argument("--task", default="lift", choices=sorted(LATENT_IDS))
     b.add_argument("--episodes", type=int, default=100)
@@ -475,8 +400,6 @@ def main(argv: list[str] | None = None) -> None:
         print(
             f"{a.task}: base policy success {base_success(a.task, a.out, a.episodes, not a.no_joint_limits, a.policy):.3f}"
         )
-    elif a.cmd == "sweep":
-        sweep(a)
     else:
         preset = {"name": a.preset, **PRESETS[a.preset]}
         if a.ent_init is not None:
