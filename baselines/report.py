@@ -58,18 +58,21 @@ def write_report(root: str | Path | list[str | Path], out: str | Path, base: dic
     out.mkdir(parents=True, exist_ok=True)
     tasks = sorted({t for t, _ in runs})
     methods = [m for m in LABELS if any(m == mm for _, mm in runs)]
+    # Beside Rust runs, the SB3 runs say so too.
+    both = any(m.startswith("rust-") for m in methods) and any(not m.startswith("rust-") for m in methods)
+    labels = {m: f"{LABELS[m]} (SB3)" if both and not m.startswith("rust-") else LABELS[m] for m in methods}
     lines = [
         "# Steering results",
         "",
-        f"From `{', '.join(str(r) for r in _roots(root))}` by `python -m baselines.steer report`. Success rates of the "
+        f"From `{', '.join(str(r) for r in _roots(root))}` by `baselines/report.py` (`python -m equigym.steer report` or `python -m baselines.steer report`). Success rates of the "
         "stochastic steering policy, each evaluation >= 50 episodes unless the runs said otherwise; mean +- standard "
         "error over seeds. The base policy column is the EDP alone (latent noise N(0, I), 100 episodes).",
         "",
     ]
 
     def cell(values: list[float]) -> str:
-        se = np.std(values, ddof=1) / np.sqrt(len(values)) if len(values) > 1 else float("nan")
-        return f"{np.mean(values):.3f} +- {se:.3f}"
+        se = np.std(values, ddof=1) / np.sqrt(len(values)) if len(values) > 1 else 0.0
+        return f"{np.mean(values):.3f}" + ("" if len(values) == 1 else f" +- {se:.3f}")
 
     # Peak over evaluations is the paper's Table 1 metric; with few noisy evaluations it is biased
     # upwards, so the mean of each run's last two evaluations is reported beside it.
@@ -80,7 +83,7 @@ def write_report(root: str | Path | list[str | Path], out: str | Path, base: dic
         lines += [
             f"**{title}**",
             "",
-            "| task | base policy | " + " | ".join(LABELS[m] for m in methods) + " |",
+            "| task | base policy | " + " | ".join(labels[m] for m in methods) + " |",
             "|---|---:|" + "---:|" * len(methods),
         ]
         for t in tasks:
@@ -102,7 +105,7 @@ def write_report(root: str | Path | list[str | Path], out: str | Path, base: dic
     lines += [
         "Mean Q of sampled replay batches (soft Q, entropy bonus included): largest / last, mean over seeds.",
         "",
-        "| task | " + " | ".join(LABELS[m] for m in methods) + " |",
+        "| task | " + " | ".join(labels[m] for m in methods) + " |",
         "|---|" + "---:|" * len(methods),
     ]
     for t in tasks:
@@ -145,7 +148,7 @@ def write_report(root: str | Path | list[str | Path], out: str | Path, base: dic
                 px = np.array([p[0] for p in pts])
                 mean = np.array([np.mean(p[1]) for p in pts])
                 se = np.array([np.std(p[1], ddof=1) / np.sqrt(len(p[1])) if len(p[1]) > 1 else 0.0 for p in pts])
-                ax.plot(px, mean, color=color, lw=2, label=LABELS[m] if key == "success_rate" else None)
+                ax.plot(px, mean, color=color, lw=2, label=labels[m] if key == "success_rate" else None)
                 ax.fill_between(px, mean - se, mean + se, color=color, alpha=0.2)
         if t in base:
             axes[0].axhline(base[t], color="k", ls="--", lw=1, label="base policy")

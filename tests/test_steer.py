@@ -53,3 +53,20 @@ def test_run_logs_resumes_and_reports(method, tmp_path):
     assert "| lift | " in text and (tmp_path / "report" / "lift.png").exists()
     label = {"dsrl": "DSRL", "equi": "Equi-DSRL", "approx": "Approx-Equi-DSRL", "sac": "SAC (raw actions)"}[method]
     assert label in text
+
+
+def test_report_labels_both_agents_and_shows_single_seeds_without_an_error_bar(tmp_path):
+    """Rust and SB3 runs side by side: the SB3 columns say so, and a single seed has no +- term."""
+    for agent, seeds in (("rust", (0, 1)), ("sb3", (0,))):
+        for s in seeds:
+            d = tmp_path / agent / "lift" / "equi" / f"seed{s}"
+            d.mkdir(parents=True)
+            meta = {"method": "equi", **({"agent": "rust"} if agent == "rust" else {})}
+            (d / "run.json").write_text(json.dumps(meta))
+            (d / "log.csv").write_text(
+                f"env_steps,success_rate,mean_q,seconds\n0,0.5,-1.0,1\n16,{0.6 + 0.1 * s},-2.0,2\n"
+            )
+    text = write_report([tmp_path / "rust", tmp_path / "sb3"], tmp_path / "report")
+    assert "| Equi-DSRL (SB3) | Equi-DSRL (Rust) |" in text
+    assert "0.600 (1 seed, 16 steps)" in text and "0.650 +- 0.050 (2 seeds, 16 steps)" in text
+    assert "nan" not in text
