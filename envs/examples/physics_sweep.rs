@@ -10,7 +10,6 @@
 use std::time::Instant;
 
 use equigym_envs::experts::{make_expert, ExpertOptions};
-use equigym_envs::math::from_pose;
 use equigym_envs::rng::EpisodeRng;
 use equigym_envs::world::deepest_penetration;
 use equigym_envs::{Env, EnvConfig};
@@ -18,6 +17,7 @@ use rapier3d::prelude::ColliderHandle;
 
 mod shared;
 use shared::adversarial::random_target;
+use shared::hold;
 use shared::settings::Setting;
 
 fn config(s: &Setting, horizon: usize) -> EnvConfig {
@@ -61,30 +61,17 @@ fn main() {
             }
         }
         let rate = steps as f64 / t0.elapsed().as_secs_f64();
-        // Hold: lift, then 400 control steps (20 s) holding the last action.
+        // Hold: lift, then 20 s holding the last action (the physics test's measurement).
         let mut slip: f64 = 0.0;
-        let mut env = Env::new(config(s, 800)).unwrap();
+        let mut env = Env::new(config(s, hold::APPROACH_STEPS + hold::HOLD_STEPS)).unwrap();
         let mut expert = make_expert("lift", ExpertOptions::default()).unwrap();
         for seed in 100..100 + episodes {
             env.reset(seed).unwrap();
             s.apply(&mut env);
             expert.reset(&env, seed);
-            let mut action = env.current_target();
-            let mut lifting = 0;
-            while lifting < 40 && env.elapsed_steps() < 400 {
-                action = expert.act(&env);
-                env.step(&action).unwrap();
-                lifting += (expert.phase() == "lift") as usize;
+            if let Some(d) = hold::hold_slip(&mut env, expert.as_mut(), "lift", 40) {
+                slip = slip.max(d);
             }
-            let rel = |env: &Env| {
-                env.scene().tcp_pose().inverse()
-                    * from_pose(env.scene().world.bodies[env.task().objects()[0].body].position())
-            };
-            let start = rel(&env);
-            for _ in 0..400 {
-                env.step(&action).unwrap();
-            }
-            slip = slip.max((rel(&env).translation.vector - start.translation.vector).norm());
         }
         println!(
             "| `{}` | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} |",

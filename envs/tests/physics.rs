@@ -4,7 +4,7 @@
 //! and Square resets never start in collision.
 
 use equigym_envs::experts::{make_expert, ExpertOptions};
-use equigym_envs::math::{from_pose, rot6d};
+use equigym_envs::math::rot6d;
 use equigym_envs::rng::EpisodeRng;
 use equigym_envs::world::deepest_penetration;
 use equigym_envs::{Env, EnvConfig};
@@ -14,9 +14,9 @@ use rapier3d::prelude::ColliderHandle;
 #[path = "../examples/shared/adversarial.rs"]
 mod adversarial;
 use adversarial::random_target;
+#[path = "../examples/shared/hold.rs"]
+mod hold;
 
-/// Control steps in 20 s at 20 Hz.
-const HOLD_STEPS: usize = 400;
 /// Largest slip of a held object relative to the hand over the hold (m).
 const MAX_HOLD_SLIP: f64 = 0.002;
 /// Deepest an object may be pushed into the table (m); `examples/depth_probe.rs` has the solver
@@ -40,51 +40,23 @@ fn env(task: &str) -> Env {
     Env::new(EnvConfig::new(task)).unwrap()
 }
 
-/// The object's pose in the TCP frame.
-fn in_hand(env: &Env, object: usize) -> Isometry3<f64> {
-    let body = env.task().objects()[object].body;
-    env.scene().tcp_pose().inverse() * from_pose(env.scene().world.bodies[body].position())
-}
-
-/// Run the expert until it carries object 0 (phase `phase` for `settle` steps), then hold the
-/// last action for 20 s. Returns the slip of the object relative to the hand, or None when the
-/// expert never got there.
-fn hold_slip(task: &str, seed: u64, phase: &str, settle: usize) -> Option<f64> {
+/// The slip of object 0 in the hand over a 20 s hold after `task`'s expert spent `settle` steps
+/// in `phase` (see `examples/shared/hold.rs`), or None when it never got there.
+fn expert_hold_slip(task: &str, seed: u64, phase: &str, settle: usize) -> Option<f64> {
     let mut cfg = EnvConfig::new(task);
-    // Room for the task's episode plus the 20 s hold.
-    cfg.horizon = Some(400 + HOLD_STEPS);
+    cfg.horizon = Some(hold::APPROACH_STEPS + hold::HOLD_STEPS);
     let mut env = Env::new(cfg).unwrap();
     let mut expert = make_expert(task, ExpertOptions::default()).unwrap();
     env.reset(seed).unwrap();
     expert.reset(&env, seed);
-    let mut action = env.current_target();
-    let mut in_phase = 0;
-    for _ in 0..400 {
-        action = expert.act(&env);
-        env.step(&action).unwrap();
-        if expert.phase() == phase {
-            in_phase += 1;
-            if in_phase >= settle {
-                break;
-            }
-        }
-    }
-    if in_phase < settle {
-        return None;
-    }
-    let start = in_hand(&env, 0);
-    for _ in 0..HOLD_STEPS {
-        env.step(&action).unwrap();
-    }
-    let end = in_hand(&env, 0);
-    Some((end.translation.vector - start.translation.vector).norm())
+    hold::hold_slip(&mut env, expert.as_mut(), phase, settle)
 }
 
 #[test]
 fn lifted_cube_stays_in_the_grasp_for_20_seconds() {
     let mut held = 0;
     for seed in 100..120 {
-        let slip = hold_slip("lift", seed, "lift", 40).expect("the expert lifts");
+        let slip = expert_hold_slip("lift", seed, "lift", 40).expect("the expert lifts");
         eprintln!("lift seed {seed}: slip {:.2} mm", slip * 1e3);
         held += (slip < MAX_HOLD_SLIP) as usize;
     }
@@ -98,7 +70,7 @@ fn carried_nut_stays_in_the_grasp_for_20_seconds() {
     let mut held = 0;
     let mut tried = 0;
     for seed in 200..240 {
-        let Some(slip) = hold_slip("square", seed, "carry", 10) else { continue };
+        let Some(slip) = expert_hold_slip("square", seed, "carry", 10) else { continue };
         eprintln!("square seed {seed}: slip {:.2} mm", slip * 1e3);
         tried += 1;
         held += (slip < MAX_HOLD_SLIP) as usize;

@@ -2,4 +2,6 @@
 #[allow(dead_code)]
 pub mod adversarial;
 #[allow(dead_code)]
+pub mod hold;
+#[allow(dead_code)]
 pub mod settings;
