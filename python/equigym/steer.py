@@ -24,8 +24,8 @@ results) and reports to Tune after each; ``--resume`` restores an interrupted sw
 from __future__ import annotations
 
 import argparse
+import csv
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -145,6 +145,34 @@ def _trainable(config: dict[str, Any]) -> None:
         target += every
 
 
+def sweep_jobs(methods: list[str], seeds: list[int], sb3: list[str], sb3_seeds: list[int]) -> list[dict[str, Any]]:
+    """The sweep's (agent, method, seed) jobs, seed-major across both agents, so that early
+    results cover every method of each."""
+    jobs = []
+    for s in sorted(set(seeds) | set(sb3_seeds)):
+        jobs += [{"agent": "rust", "method": m, "seed": s} for m in methods if s in seeds]
+        jobs += [{"agent": "sb3", "method": m, "seed": s} for m in sb3 if s in sb3_seeds]
+    return jobs
+
+
+def _write_sweep_record(path: Path, invocations: list[dict[str, Any]], out: Path) -> None:
+    """``sweep.json``: every invocation, the wall time of those that finished, and the sum of the
+    runs' own clocks (the last ``seconds`` of each ``log.csv`` under ``out``)."""
+    clocks = []
+    for log in sorted(out.glob("*/*/*/seed*/log.csv")):
+        with open(log) as f:
+            rows = list(csv.DictReader(f))
+        if rows:
+            clocks.append(float(rows[-1]["seconds"]))
+    record = {
+        "invocations": invocations,
+        "wall_seconds": round(sum(i.get("wall_seconds", 0.0) for i in invocations), 1),
+        "runs": len(clocks),
+        "run_seconds": round(sum(clocks), 1),
+    }
+    path.write_text(json.dumps(record, indent=1))
+
+
 def sweep(a: argparse.Namespace) -> None:
     try:
         import ray
@@ -152,12 +180,8 @@ def sweep(a: argparse.Namespace) -> None:
     except ImportError as e:  # pragma: no cover
         raise SystemExit("the sweep needs Ray Tune: pip install 'equigym[sweep]' (or 'ray[tune]')") from e
     out = Path(a.out).resolve()
-    sb3_seeds = a.sb3_seeds if a.sb3_seeds is not None else a.seeds
-    # Seed-major across both agents, so that early results cover every method of each.
-    jobs = []
-    for s in sorted(set(a.seeds) | set(sb3_seeds)):
-        jobs += [{"agent": "rust", "method": m, "seed": s} for m in a.methods if s in a.seeds]
-        jobs += [{"agent": "sb3", "method": m, "seed": s} for m in (a.sb3 or []) if s in sb3_seeds]
+    out.mkdir(parents=True, exist_ok=True)
+    jobs = sweep_jobs(a.methods, a.seeds, a.sb3 or [], a.sb3_seeds if a.sb3_seeds is not None else a.seeds)
     space = {
         "job": tune.grid_search(jobs),
         "task": tune.grid_search(a.tasks),
@@ -176,8 +200,10 @@ def sweep(a: argparse.Namespace) -> None:
         c["out"] = str(Path(c["out_root"]) / c["agent"])
         _trainable(c)
 
+    # "local": a fresh instance of --cpus CPUs, even when another Ray instance runs on this machine
+    # (with no address Ray would join that one).
     ray.init(
-        address=a.address,
+        address=a.address or "local",
         num_cpus=a.cpus if a.address is None else None,
         ignore_reinit_error=True,
         runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}} if a.sb3 else None,
@@ -192,21 +218,21 @@ def sweep(a: argparse.Namespace) -> None:
         tuner = tune.Tuner(
             resources, param_space=space, run_config=tune.RunConfig(name=name, storage_path=storage, verbose=1)
         )
-    results = tuner.fit()
+    # One record per invocation, written when it starts and completed when it ends, so that a
+    # resumed sweep's wall time adds up (a killed invocation keeps its start time only).
+    record_path = out / "sweep.json"
+    record = json.loads(record_path.read_text()) if a.resume and record_path.exists() else {}
+    invocations = record.get("invocations", [])
+    invocations.append({"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "args": vars(a)})
+    _write_sweep_record(record_path, invocations, out)
+    try:
+        results = tuner.fit()
+    finally:
+        ray.shutdown()
     wall = time.time() - started
     failed = [r for r in results if r.error is not None]
-    (out / "sweep.json").write_text(
-        json.dumps(
-            {
-                "trials": len(results),
-                "failed": len(failed),
-                "wall_seconds": round(wall, 1),
-                "cpus": a.cpus,
-                "args": sys.argv[1:],
-            },
-            indent=1,
-        )
-    )
+    invocations[-1].update({"wall_seconds": round(wall, 1), "trials": len(results), "failed": len(failed)})
+    _write_sweep_record(record_path, invocations, out)
     print(f"{len(results)} trials, {len(failed)} failed, {wall:.0f} s wall")
     if failed:
         raise SystemExit(f"{len(failed)} trials failed; rerun with --resume")
