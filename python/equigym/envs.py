@@ -54,7 +54,35 @@ def check_seed(seed: Any) -> None:
         raise InvalidInputError(f"seed must be None or a non-negative integer, got {seed!r}")
 
 
-class EquiEnv(gymnasium.Env):
+def episode_seed(env: gymnasium.Env, seed: int | None) -> int:
+    """The Rust episode seed of a reset: ``seed`` itself, or the next draw of the environment's
+    gymnasium RNG (so that seeded resets are reproducible and unseeded ones continue the stream).
+    Call after ``gymnasium.Env.reset(seed=seed)``."""
+    return int(seed) if seed is not None else int(env.np_random.integers(0, 2**63 - 1))
+
+
+class SpecLayouts:
+    """The layout metadata of ``self.core.spec`` (one environment, or each row of a batch), for
+    agents and symmetry tools."""
+
+    core: Any
+
+    @property
+    def observation_fields(self) -> dict[str, slice]:
+        """Observation field name -> slice (of one row)."""
+        return {f["name"]: slice(f["start"], f["start"] + f["len"]) for f in self.core.spec.observation_layout}
+
+    @property
+    def observation_layout(self) -> list[dict[str, Any]]:
+        """Fields with their group representation (``rep``), as in the paper's tables."""
+        return self.core.spec.observation_layout
+
+    @property
+    def action_layout(self) -> list[dict[str, Any]]:
+        return self.core.spec.action_layout
+
+
+class EquiEnv(SpecLayouts, gymnasium.Env):
     (
         """One equigym task as a :class:`gymnasium.Env` (``gymnasium.make("EquiLift-v0")``).
 
@@ -108,21 +136,7 @@ class EquiEnv(gymnasium.Env):
         else:
             self.action_space = spaces.Box(-1.0, 1.0, shape=(spec.action_dim,), dtype=np.float32)
 
-    # -- metadata for agents and symmetry tools -------------------------------------------
-    @property
-    def observation_fields(self) -> dict[str, slice]:
-        """Observation field name -> slice."""
-        return {f["name"]: slice(f["start"], f["start"] + f["len"]) for f in self.core.spec.observation_layout}
-
-    @property
-    def observation_layout(self) -> list[dict[str, Any]]:
-        """Fields with their group representation (``rep``), as in the paper's tables."""
-        return self.core.spec.observation_layout
-
-    @property
-    def action_layout(self) -> list[dict[str, Any]]:
-        return self.core.spec.action_layout
-
+    # -- metadata for agents and symmetry tools (the layouts: SpecLayouts) ----------------
     @property
     def horizon(self) -> int:
         """Episode length in control steps (the environment truncates there)."""
@@ -132,11 +146,9 @@ class EquiEnv(gymnasium.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         check_seed(seed)
         super().reset(seed=seed)
-        # The Rust episode seed comes from the gymnasium RNG: seeded resets are reproducible,
-        # unseeded ones continue the stream.
-        episode_seed = int(seed) if seed is not None else int(self.np_random.integers(0, 2**63 - 1))
-        obs = self.core.reset(episode_seed)
-        info = {"episode_seed": episode_seed}
+        seed_used = episode_seed(self, seed)
+        obs = self.core.reset(seed_used)
+        info = {"episode_seed": seed_used}
         return obs.astype(np.float32), info
 
     def step(self, action):

@@ -23,7 +23,7 @@ from gymnasium.vector.utils import batch_space
 
 from equigym import _core
 from equigym.assets import policy_path
-from equigym.envs import OPTIONS_DOC, check_seed
+from equigym.envs import OPTIONS_DOC, check_seed, episode_seed
 from equigym.errors import InvalidInputError
 from equigym.vector import NativeVectorEnv, _mode_name, check_vector_args, vector_horizon
 
@@ -96,9 +96,9 @@ class EquiLatentEnv(gymnasium.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         check_seed(seed)
         super().reset(seed=seed)
-        episode_seed = int(seed) if seed is not None else int(self.np_random.integers(0, 2**63 - 1))
-        obs = self.core.reset(episode_seed)
-        return obs.astype(np.float32), {"episode_seed": episode_seed}
+        seed_used = episode_seed(self, seed)
+        obs = self.core.reset(seed_used)
+        return obs.astype(np.float32), {"episode_seed": seed_used}
 
     def step(self, action):
         w = np.asarray(action)

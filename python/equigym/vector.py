@@ -41,7 +41,7 @@ from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from equigym import _core
-from equigym.envs import ACTION_MODES, OPTIONS_DOC
+from equigym.envs import ACTION_MODES, OPTIONS_DOC, SpecLayouts
 from equigym.errors import InvalidInputError
 
 try:  # gymnasium >= 1.1
@@ -192,7 +192,7 @@ def check_vector_args(num_envs: Any, threads: Any) -> None:
         raise InvalidInputError(f"threads must be a non-negative integer (0: one per core), got {threads!r}")
 
 
-class EquiVectorEnv(NativeVectorEnv):
+class EquiVectorEnv(SpecLayouts, NativeVectorEnv):
     (
         """``num_envs`` copies of one equigym task as a :class:`gymnasium.vector.VectorEnv`.
 
@@ -249,20 +249,6 @@ class EquiVectorEnv(NativeVectorEnv):
             self.single_action_space = spaces.Box(-1.0, 1.0, shape=(spec.action_dim,), dtype=np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
-
-    # -- metadata --------------------------------------------------------------------------
-    @property
-    def observation_fields(self) -> dict[str, slice]:
-        """Observation field name -> slice (of one row)."""
-        return {f["name"]: slice(f["start"], f["start"] + f["len"]) for f in self.core.spec.observation_layout}
-
-    @property
-    def observation_layout(self) -> list[dict[str, Any]]:
-        return self.core.spec.observation_layout
-
-    @property
-    def action_layout(self) -> list[dict[str, Any]]:
-        return self.core.spec.action_layout
 
     # -- gymnasium API ---------------------------------------------------------------------
     def _to_core(self, a: np.ndarray) -> np.ndarray:
