@@ -64,6 +64,49 @@ pub const MEAN_Q_SAMPLE: usize = 256;
 /// Checkpoint format tag.
 pub const CHECKPOINT_FORMAT: &str = "equigym-agents-ckpt-2";
 const CHECKPOINT_FILE: &str = "checkpoint.bin";
+const SUMMARY_FILE: &str = "summary.json";
+
+/// `summary.json`: step counts, the final weights' hash, the run's clock and its time split.
+#[derive(Debug, Serialize, Deserialize)]
+struct SummaryFile {
+    env_steps: u64,
+    grad_steps: u64,
+    params_hash: String,
+    seconds: f64,
+    /// Absent in summaries of older versions (then the split starts again from zero).
+    #[serde(default)]
+    seconds_by_activity: TimeSplit,
+}
+
+/// Tenths of a second, for files people read.
+fn tenths(x: f64) -> f64 {
+    (x * 10.0).round() / 10.0
+}
+
+impl Runner {
+    /// Write `summary.json` for the run's current state.
+    fn write_summary(&self, dir: &Path) -> Result<()> {
+        let t = self.time;
+        let file = SummaryFile {
+            env_steps: self.env_steps(),
+            grad_steps: self.grad_steps,
+            params_hash: format!("{:016x}", params_hash(&self.sac)),
+            seconds: tenths(self.elapsed),
+            seconds_by_activity: TimeSplit { rollout: tenths(t.rollout), train: tenths(t.train), eval: tenths(t.eval) },
+        };
+        let path = dir.join(SUMMARY_FILE);
+        let text = serde_json::to_string(&file).map_err(|e| io_err(&path, e))?;
+        write_atomic(&path, format!("{text}\n").as_bytes())
+    }
+
+    /// The time split of the invocations before this one (from `summary.json`, if readable).
+    fn load_time_split(&mut self, dir: &Path) {
+        let prior = std::fs::read(dir.join(SUMMARY_FILE)).ok();
+        if let Some(file) = prior.and_then(|b| serde_json::from_slice::<SummaryFile>(&b).ok()) {
+            self.time = file.seconds_by_activity;
+        }
+    }
+}
 /// Shipped diffusion policies (`assets/edp/<task>.safetensors`) in the source tree.
 pub const DEFAULT_POLICY_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../assets/edp");
 
@@ -256,7 +299,7 @@ pub struct RunSummary {
     pub env_steps: u64,
     pub grad_steps: u64,
     pub seconds: f64,
-    /// This invocation's seconds by activity (a resumed run counts only its own part).
+    /// The run's wall-clock seconds by activity, summed over every invocation that advanced it.
     pub time: TimeSplit,
     /// Hidden regular fields of the equivariant nets (0 for DSRL).
     pub fields: usize,
@@ -389,13 +432,15 @@ struct Runner {
     /// One per row of `rows`.
     diagnostics: Vec<Diagnostics>,
     obs_dim: usize,
-    /// Where this invocation's time went (not checkpointed: wall time is not reproducible).
+    /// Where the run's time went, over all its invocations (kept in `summary.json`, not in the
+    /// checkpoint: wall time is not reproducible).
     time: TimeSplit,
 }
 
-/// Wall-clock seconds of one invocation of [`run`] by activity, written to `summary.json` so
-/// that a run's cost can be attributed (gradient steps vs simulation).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// Wall-clock seconds of a run by activity, summed over its invocations and written to
+/// `summary.json` (`seconds_by_activity`) so that a run's cost can be attributed (gradient steps
+/// vs simulation), also for sweep trials that resume once per evaluation.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct TimeSplit {
     /// Collecting transitions: actor forward passes, DDIM and the environments' physics.
     pub rollout: f64,
@@ -725,6 +770,7 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         let c: Checkpoint = postcard::from_bytes(&bytes).map_err(corrupt)?;
         r.restore(c, &ckpt_path)?;
         r.write_log(&dir)?;
+        r.load_time_split(&dir);
     } else {
         for e in r.envs.iter_mut() {
             let seed = r.streams.env_seeds.next_u64();
@@ -741,6 +787,7 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
     );
     write_atomic(&dir.join("run.json"), meta.as_bytes())?;
     let base_elapsed = r.elapsed;
+    let steps_at_start = r.env_steps();
     let mut batch = Batch::default();
     let mut evals_now = 0;
     while r.env_steps() < cfg.steps as u64 {
@@ -760,6 +807,7 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
             let c = r.checkpoint()?;
             let bytes = postcard::to_stdvec(&c).map_err(|e| io_err(&ckpt_path, e))?;
             write_atomic(&ckpt_path, &bytes)?;
+            r.write_summary(&dir)?;
             if cfg.progress {
                 eprintln!(
                     "{}/{}/seed{}: {steps} env steps, success {success_rate:.2}, mean Q {mean_q:.3}, {:.1} s",
@@ -775,10 +823,12 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
             }
         }
     }
-    if cfg.stop_after_evals != Some(evals_now) {
+    // An invocation that found the run finished leaves its files (and its clock) as they were.
+    if r.env_steps() > steps_at_start && cfg.stop_after_evals != Some(evals_now) {
         r.elapsed = base_elapsed + started.elapsed().as_secs_f64();
         let bytes = postcard::to_stdvec(&r.checkpoint()?).map_err(|e| io_err(&ckpt_path, e))?;
         write_atomic(&ckpt_path, &bytes)?;
+        r.write_summary(&dir)?;
     }
     let summary = RunSummary {
         run_dir: dir.clone(),
@@ -786,17 +836,11 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         params_hash: params_hash(&r.sac),
         env_steps: r.env_steps(),
         grad_steps: r.grad_steps,
-        seconds: base_elapsed + started.elapsed().as_secs_f64(),
+        seconds: r.elapsed,
         time: r.time,
         fields,
         params_actor,
         params_critic,
     };
-    let t = summary.time;
-    let done = format!(
-        "{{\"env_steps\": {}, \"grad_steps\": {}, \"params_hash\": \"{:016x}\", \"seconds\": {:.1}, \"seconds_this_invocation\": {{\"rollout\": {:.1}, \"train\": {:.1}, \"eval\": {:.1}}}}}\n",
-        summary.env_steps, summary.grad_steps, summary.params_hash, summary.seconds, t.rollout, t.train, t.eval
-    );
-    write_atomic(&dir.join("summary.json"), done.as_bytes())?;
     Ok(summary)
 }

@@ -9,7 +9,7 @@
 use std::path::{Path, PathBuf};
 
 use equigym_agents::run::LogRow;
-use equigym_agents::{run, Method, Preset, RunConfig, RunSummary};
+use equigym_agents::{run, Method, Preset, RunConfig, RunSummary, TimeSplit};
 
 const GOLDEN: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/golden/lift_short_runs.txt");
 
@@ -79,8 +79,24 @@ fn threads_resume_and_golden() {
             assert_eq!(numbers(&a.rows), numbers(&resumed.rows), "{method:?}: resumed run");
             assert_eq!(a.params_hash, resumed.params_hash, "{method:?}: resumed run");
             assert_eq!(a.grad_steps, resumed.grad_steps);
-            let log = std::fs::read_to_string(c_dir.join("lift/").join(method.name()).join("seed3/log.csv")).unwrap();
+            let run_dir = c_dir.join("lift/").join(method.name()).join("seed3");
+            let log = std::fs::read_to_string(run_dir.join("log.csv")).unwrap();
             assert_eq!(log.lines().count(), 5, "the resumed log has every evaluation once");
+            // Started again when finished: nothing changes, and the time split (summed over the
+            // two invocations that did the work) comes back from summary.json.
+            let files = |d: &Path| ["summary.json", "checkpoint.bin"].map(|f| std::fs::read(d.join(f)).unwrap());
+            let before = files(&run_dir);
+            let again = run(&cc).unwrap();
+            assert_eq!(files(&run_dir), before, "{method:?}: a finished run's files are left as they were");
+            assert_eq!((again.seconds, again.params_hash), (resumed.seconds, resumed.params_hash));
+            let tenths = |x: f64| (x * 10.0).round() / 10.0;
+            let t = resumed.time;
+            assert_eq!(
+                again.time,
+                TimeSplit { rollout: tenths(t.rollout), train: tenths(t.train), eval: tenths(t.eval) },
+                "{method:?}: the split is the run's, not the invocation's"
+            );
+            assert!(t.rollout > 0.0 && t.train > 0.0 && t.eval > stopped.time.eval);
             for d in [b_dir, c_dir] {
                 let _ = std::fs::remove_dir_all(d);
             }

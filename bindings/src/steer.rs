@@ -66,7 +66,7 @@ pub fn steer_run<'py>(
     split.set_item("rollout", s.time.rollout)?;
     split.set_item("train", s.time.train)?;
     split.set_item("eval", s.time.eval)?;
-    d.set_item("seconds_this_invocation", split)?;
+    d.set_item("seconds_by_activity", split)?;
     d.set_item("params_hash", format!("{:016x}", s.params_hash))?;
     d.set_item("fields", s.fields)?;
     d.set_item("params_actor", s.params_actor)?;

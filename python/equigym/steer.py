@@ -63,7 +63,7 @@ def run(
     progress: bool = True,
 ) -> dict[str, Any]:
     """One Rust steering run (see the module docs); returns its summary (``run_dir``, ``rows``,
-    ``env_steps``, ``grad_steps``, ``seconds``, ``seconds_this_invocation`` (``rollout``,
+    ``env_steps``, ``grad_steps``, ``seconds``, ``seconds_by_activity`` (``rollout``,
     ``train``, ``eval``), ``params_hash``, ``fields``, parameter counts)."""
     return _core.steer_run(
         method,
