@@ -71,8 +71,9 @@ def write_report(root: str | Path | list[str | Path], out: str | Path, base: dic
     ]
 
     def cell(values: list[float]) -> str:
-        se = np.std(values, ddof=1) / np.sqrt(len(values)) if len(values) > 1 else 0.0
-        return f"{np.mean(values):.3f}" + ("" if len(values) == 1 else f" +- {se:.3f}")
+        if len(values) == 1:
+            return f"{values[0]:.3f}"
+        return f"{np.mean(values):.3f} +- {np.std(values, ddof=1) / np.sqrt(len(values)):.3f}"
 
     # Peak over evaluations is the paper's Table 1 metric; with few noisy evaluations it is biased
     # upwards, so the mean of each run's last two evaluations is reported beside it.

@@ -29,11 +29,14 @@ for agent in rust sb3; do
     copied+=("$dest")
   done
 done
-# The base policy's success per task (100 episodes, latent noise N(0, I); cached in base.json)
+# The base policy's success per task (100 episodes, latent noise N(0, I)), measured once into
+# SWEEP/rust/<task>/base.json (which outlives republishing) and copied beside the runs.
 for dir in "$DOCS/runs/rust"/*/; do
   task=$(basename "$dir")
-  PYTHONPATH=. $PY -c "from baselines.steer import base_success; base_success('$task', '$DOCS/runs/rust', 100)"
-  [ -d "$DOCS/runs/sb3/$task" ] && cp "$dir/base.json" "$DOCS/runs/sb3/$task/"
+  PYTHONPATH=. $PY -c "from baselines.steer import base_success; base_success('$task', '$SWEEP/rust', 100)"
+  for agent in rust sb3; do
+    if [ -d "$DOCS/runs/$agent/$task" ]; then cp "$SWEEP/rust/$task/base.json" "$DOCS/runs/$agent/$task/"; fi
+  done
 done
 $PY -m equigym.steer report --runs "$DOCS/runs/rust" --sb3-runs "$DOCS/runs/sb3" --out "$DOCS" > /dev/null
 $PY -m equigym.steer diagnose "${copied[@]}" --out "$DOCS/diagnostics.md" > /dev/null

@@ -83,30 +83,6 @@ fn tenths(x: f64) -> f64 {
     (x * 10.0).round() / 10.0
 }
 
-impl Runner {
-    /// Write `summary.json` for the run's current state.
-    fn write_summary(&self, dir: &Path) -> Result<()> {
-        let t = self.time;
-        let file = SummaryFile {
-            env_steps: self.env_steps(),
-            grad_steps: self.grad_steps,
-            params_hash: format!("{:016x}", params_hash(&self.sac)),
-            seconds: tenths(self.elapsed),
-            seconds_by_activity: TimeSplit { rollout: tenths(t.rollout), train: tenths(t.train), eval: tenths(t.eval) },
-        };
-        let path = dir.join(SUMMARY_FILE);
-        let text = serde_json::to_string(&file).map_err(|e| io_err(&path, e))?;
-        write_atomic(&path, format!("{text}\n").as_bytes())
-    }
-
-    /// The time split of the invocations before this one (from `summary.json`, if readable).
-    fn load_time_split(&mut self, dir: &Path) {
-        let prior = std::fs::read(dir.join(SUMMARY_FILE)).ok();
-        if let Some(file) = prior.and_then(|b| serde_json::from_slice::<SummaryFile>(&b).ok()) {
-            self.time = file.seconds_by_activity;
-        }
-    }
-}
 /// Shipped diffusion policies (`assets/edp/<task>.safetensors`) in the source tree.
 pub const DEFAULT_POLICY_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../assets/edp");
 
@@ -451,6 +427,33 @@ pub struct TimeSplit {
 }
 
 impl Runner {
+    /// Save the run's state: the checkpoint (what a resume needs) and `summary.json` (step
+    /// counts, weights hash, clock and time split).
+    fn save(&mut self, dir: &Path) -> Result<()> {
+        let ckpt_path = dir.join(CHECKPOINT_FILE);
+        let bytes = postcard::to_stdvec(&self.checkpoint()?).map_err(|e| io_err(&ckpt_path, e))?;
+        write_atomic(&ckpt_path, &bytes)?;
+        let t = self.time;
+        let file = SummaryFile {
+            env_steps: self.env_steps(),
+            grad_steps: self.grad_steps,
+            params_hash: format!("{:016x}", params_hash(&self.sac)),
+            seconds: tenths(self.elapsed),
+            seconds_by_activity: TimeSplit { rollout: tenths(t.rollout), train: tenths(t.train), eval: tenths(t.eval) },
+        };
+        let path = dir.join(SUMMARY_FILE);
+        let text = serde_json::to_string(&file).map_err(|e| io_err(&path, e))?;
+        write_atomic(&path, format!("{text}\n").as_bytes())
+    }
+
+    /// The time split of the invocations before this one (from `summary.json`, if readable).
+    fn load_time_split(&mut self, dir: &Path) {
+        let prior = std::fs::read(dir.join(SUMMARY_FILE)).ok();
+        if let Some(file) = prior.and_then(|b| serde_json::from_slice::<SummaryFile>(&b).ok()) {
+            self.time = file.seconds_by_activity;
+        }
+    }
+
     fn make_env(&self) -> Result<LatentEnv> {
         make_env(&self.cfg, &self.policy)
     }
@@ -804,10 +807,7 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
             r.elapsed = base_elapsed + started.elapsed().as_secs_f64();
             r.rows.push(LogRow { env_steps: steps, success_rate, mean_q, seconds: (r.elapsed * 10.0).round() / 10.0 });
             r.write_log(&dir)?;
-            let c = r.checkpoint()?;
-            let bytes = postcard::to_stdvec(&c).map_err(|e| io_err(&ckpt_path, e))?;
-            write_atomic(&ckpt_path, &bytes)?;
-            r.write_summary(&dir)?;
+            r.save(&dir)?;
             if cfg.progress {
                 eprintln!(
                     "{}/{}/seed{}: {steps} env steps, success {success_rate:.2}, mean Q {mean_q:.3}, {:.1} s",
@@ -826,9 +826,7 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
     // An invocation that found the run finished leaves its files (and its clock) as they were.
     if r.env_steps() > steps_at_start && cfg.stop_after_evals != Some(evals_now) {
         r.elapsed = base_elapsed + started.elapsed().as_secs_f64();
-        let bytes = postcard::to_stdvec(&r.checkpoint()?).map_err(|e| io_err(&ckpt_path, e))?;
-        write_atomic(&ckpt_path, &bytes)?;
-        r.write_summary(&dir)?;
+        r.save(&dir)?;
     }
     let summary = RunSummary {
         run_dir: dir.clone(),

@@ -6,8 +6,9 @@
 //! registers in f32; with 4 x 16, 8 accumulators barely covered the FMA latency: on the
 //! 256 x 192 x 192 layer 6 x 16 ran 79-80 GFLOP/s against 50-59, two alternating runs of
 //! `examples/bench` each on a loaded machine) and stream one row of `B` per step of `p`:
-//! vectorised across the outputs `j`, never across `p`. Edge blocks (fewer rows or columns) use narrower copies of the same loop, with the same
-//! order of operations, so every element's bits are independent of blocking and batch size.
+//! vectorised across the outputs `j`, never across `p`. Edge blocks (fewer rows or columns) use
+//! narrower copies of the same loop, with the same order of operations, so every element's bits
+//! are independent of blocking and batch size.
 //!
 //! Shapes: `A` is `m x k` row-major ([`Trans::N`]) or stored `k x m` row-major and read
 //! transposed ([`Trans::T`], e.g. `X^T dY` for a weight gradient); `B` is `k x n` row-major; `C`
