@@ -29,14 +29,20 @@ fn main() {
 }
 
 fn probe(setting: &Setting, episodes: u64) {
+    // DEPTH_TRACE=task:episode:step prints the 12 control steps up to that step of that episode.
+    let trace: Option<(String, u64, usize)> = std::env::var("DEPTH_TRACE").ok().and_then(|v| {
+        let mut it = v.split(':');
+        Some((it.next()?.to_string(), it.next()?.parse().ok()?, it.next()?.parse().ok()?))
+    });
     let mut rng = EpisodeRng::from_seed(4242);
     for task in ["lift", "stack", "square"] {
         let mut env = Env::new(setting.env_config(task)).unwrap();
         let start = Instant::now();
         // (depth, episode, step, deepest robot contact with an object at that moment)
         let mut worst = (0.0f64, 0u64, 0usize, 0.0f64);
-        // (depth of a robot collider in the table or an object, episode, step, in the table?)
-        let mut worst_robot = (0.0f64, 0u64, 0usize, false);
+        // (depth of a robot collider in the table or an object, episode, step, in the table?,
+        // which robot collider: its index in the rig's collider list)
+        let mut worst_robot = (0.0f64, 0u64, 0usize, false, 0usize);
         for episode in 0..episodes {
             env.reset(1000 + episode).unwrap();
             setting.apply(&mut env);
@@ -50,11 +56,96 @@ fn probe(setting: &Setting, episodes: u64) {
                 }
                 env.step(&a).unwrap();
                 let scene = env.scene();
+                if trace.as_ref().is_some_and(|(k, e, s)| k == task && *e == episode && t + 12 >= *s && t <= *s) {
+                    let tcp = scene.tcp_pose();
+                    let fingers = scene.finger_positions();
+                    let depths: Vec<String> = scene
+                        .rig
+                        .colliders()
+                        .enumerate()
+                        .map(|(i, c)| (i, deepest_penetration(&scene.world, [c], &objects)))
+                        .filter(|(_, d)| *d > 1e-4)
+                        .map(|(i, d)| {
+                            let c = scene.rig.colliders().nth(i).unwrap();
+                            // what the narrow phase has for this collider and each object
+                            let pairs: Vec<String> = objects
+                                .iter()
+                                .filter(|o| deepest_penetration(&scene.world, [c], &[**o]) > 1e-4)
+                                .map(|o| {
+                                    let (ca, cb) = (&scene.world.colliders[c], &scene.world.colliders[*o]);
+                                    // independent check for a capsule: radius minus the distance
+                                    // from its segment to the other shape
+                                    let seg = ca.shape().as_capsule().map(|cap| {
+                                        let d = rapier3d::parry::query::distance(
+                                            ca.position(),
+                                            &cap.segment,
+                                            cb.position(),
+                                            cb.shape(),
+                                        )
+                                        .unwrap();
+                                        cap.radius - d.distance
+                                    });
+                                    let gjk = rapier3d::parry::query::intersection_test(
+                                        ca.position(),
+                                        ca.shape(),
+                                        cb.position(),
+                                        cb.shape(),
+                                    )
+                                    .map(|i| i.intersecting);
+                                    let swapped = rapier3d::parry::query::contact(
+                                        cb.position(),
+                                        cb.shape(),
+                                        ca.position(),
+                                        ca.shape(),
+                                        0.0,
+                                    )
+                                    .ok()
+                                    .flatten()
+                                    .map(|k| k.dist);
+                                    let seg = format!("{seg:?}, gjk intersecting {gjk:?}, swapped {swapped:?}");
+                                    match scene.world.narrow_phase.contact_pair(c, *o) {
+                                        None => format!("no pair; capsule check {seg:?}"),
+                                        Some(p) => format!(
+                                            "pair active {} deepest {:?}; capsule check {seg:?}",
+                                            p.has_any_active_contact(),
+                                            p.find_deepest_contact().map(|(_, k)| k.dist)
+                                        ),
+                                    }
+                                })
+                                .collect();
+                            format!("c{i} {:.1} ({})", d * 1e3, pairs.join("; "))
+                        })
+                        .collect();
+                    let objs: Vec<String> = env
+                        .task()
+                        .objects()
+                        .iter()
+                        .map(|o| {
+                            let b = &scene.world.bodies[o.body];
+                            let p = b.translation();
+                            format!("{} ({:.3},{:.3},{:.3}) v {:.2}", o.name, p.x, p.y, p.z, b.linvel().length())
+                        })
+                        .collect();
+                    println!(
+                        "  t {t}: action xyz ({:.3},{:.3},{:.3}) w {:.3}; tcp ({:.3},{:.3},{:.3}) z-axis z {:.2}; fingers {:.4} {:.4}; depths mm [{}]; {}",
+                        a[0], a[1], a[2], a[9], tcp.translation.x, tcp.translation.y, tcp.translation.z,
+                        (tcp.rotation * nalgebra::Vector3::z()).z, fingers[0], fingers[1], depths.join(", "), objs.join("; ")
+                    );
+                }
                 let depth = deepest_penetration(&scene.world, objects.iter().copied(), &[table]);
                 let in_objects = deepest_penetration(&scene.world, scene.rig.colliders(), &objects);
                 let in_table = deepest_penetration(&scene.world, scene.rig.colliders(), &[table]);
                 if in_objects.max(in_table) > worst_robot.0 {
-                    worst_robot = (in_objects.max(in_table), episode, t, in_table > in_objects);
+                    let mut obstacles = objects.clone();
+                    obstacles.push(table);
+                    let which = scene
+                        .rig
+                        .colliders()
+                        .enumerate()
+                        .map(|(i, c)| (deepest_penetration(&scene.world, [c], &obstacles), i))
+                        .fold((0.0, 0), |a, b| if b.0 > a.0 { b } else { a })
+                        .1;
+                    worst_robot = (in_objects.max(in_table), episode, t, in_table > in_objects, which);
                 }
                 if depth > worst.0 {
                     let pressed = deepest_penetration(&scene.world, scene.rig.colliders(), &objects);
@@ -64,7 +155,7 @@ fn probe(setting: &Setting, episodes: u64) {
         }
         println!(
             "{task:>6}: deepest object {:.2} mm into the table (episode {}, step {}; robot {:.2} mm into an object then); \
-             deepest robot {:.2} mm into {} (episode {}, step {}); {:.0} steps/s",
+             deepest robot {:.2} mm into {} (episode {}, step {}, rig collider {}); {:.0} steps/s",
             worst.0 * 1e3,
             worst.1,
             worst.2,
@@ -73,6 +164,7 @@ fn probe(setting: &Setting, episodes: u64) {
             if worst_robot.3 { "the table" } else { "an object" },
             worst_robot.1,
             worst_robot.2,
+            worst_robot.4,
             (episodes * 400) as f64 / start.elapsed().as_secs_f64()
         );
     }

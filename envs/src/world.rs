@@ -13,7 +13,9 @@
 //! episodes: deepest object 1.7 / 2.7 / 0.5 mm against 2.1 / 1.5 / 2.5 mm, deepest robot
 //! collider 2.3 / 3.8 / 3.6 mm against 2.2 / 3.8 / 3.6 mm for lift / stack / square) at about
 //! 1.35x the adversarial steps/s (`examples/physics_sweep.rs`). Two substeps were faster again
-//! but let an arm link 22-30 mm into an object or the peg in a few episodes.
+//! but let an arm link 22-30 mm into an object or the peg in a few episodes (measured before
+//! [`penetration_depth`] stopped trusting parry's `contact` query alone, which over-reported
+//! such grazes; not re-measured).
 
 use nalgebra::Isometry3;
 use rapier3d::prelude::*;
@@ -230,17 +232,50 @@ pub fn build_world(config: &PhysicsConfig, table: &TableSpec) -> (PhysicsWorld, 
     (world, WorldColliders { table, floor })
 }
 
-/// Penetration depth (m) of two colliders at their current poses, from an exact shape query
+/// Penetration depth (m) of two colliders at their current poses, from exact shape queries
 /// (rapier's reported contact depths lag by a step and miss pairs the narrow phase has not
 /// seen yet); 0 when they are apart.
+///
+/// parry's `contact` query alone is not trusted: on touching or nearly touching shapes it
+/// reported an arm link grazing the Square peg as 14.3 mm deep (the segment-to-box distance:
+/// 6 micrometres apart) and a finger pad next to a Stack cube as 17.4 mm deep (the same query
+/// with the shapes swapped, GJK and rapier's own contact: 4 mm apart); `examples/depth_probe.rs`
+/// with `DEPTH_TRACE` prints all four. So a depth counts only where GJK's intersection test
+/// agrees that the shapes overlap, it is the smaller of the query's two readings (both orders
+/// of the shapes), and a capsule (every arm link) is measured as what it is, a
+/// segment swept by a ball: its radius minus the distance from its segment, exact while the
+/// segment itself is outside the other shape.
 pub fn penetration_depth(world: &PhysicsWorld, a: ColliderHandle, b: ColliderHandle) -> f64 {
+    use rapier3d::parry::query;
     let (Some(ca), Some(cb)) = (world.colliders.get(a), world.colliders.get(b)) else {
         return 0.0;
     };
-    match rapier3d::parry::query::contact(ca.position(), ca.shape(), cb.position(), cb.shape(), 0.0) {
-        Ok(Some(c)) => (-c.dist as f64).max(0.0),
-        _ => 0.0,
+    let overlap = query::intersection_test(ca.position(), ca.shape(), cb.position(), cb.shape());
+    if !overlap.is_ok_and(|o| o.intersecting) {
+        return 0.0;
     }
+    for (capsule, other) in [(ca, cb), (cb, ca)] {
+        if let Some(cap) = capsule.shape().as_capsule() {
+            if let Ok(d) = query::distance(capsule.position(), &cap.segment, other.position(), other.shape()) {
+                if d.distance > 0.0 {
+                    return (cap.radius - d.distance).max(0.0) as f64;
+                }
+            }
+        }
+    }
+    // The true depth does not depend on the order of the shapes; the query's over-reports did.
+    let depth = |p1: &rapier3d::parry::math::Pose, s1: &dyn Shape, p2: &rapier3d::parry::math::Pose, s2: &dyn Shape| {
+        match query::contact(p1, s1, p2, s2, 0.0) {
+            Ok(Some(c)) => (-c.dist as f64).max(0.0),
+            _ => 0.0,
+        }
+    };
+    depth(ca.position(), ca.shape(), cb.position(), cb.shape()).min(depth(
+        cb.position(),
+        cb.shape(),
+        ca.position(),
+        ca.shape(),
+    ))
 }
 
 /// The deepest penetration between any collider of `a` and any of `b`.
