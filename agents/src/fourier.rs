@@ -35,8 +35,8 @@ pub fn dft_matrix() -> [[f64; ORDER]; ORDER] {
         t[0][a] = 1.0 / n.sqrt();
         t[1][a] = if a % 2 == 0 { 1.0 } else { -1.0 } / n.sqrt();
         for (j, &w) in COMPLEX_FREQS.iter().enumerate() {
-            t[2 + 2 * j][a] = (w as f64 * th).cos() * (2.0 / n).sqrt();
-            t[3 + 2 * j][a] = -(w as f64 * th).sin() * (2.0 / n).sqrt();
+            t[2 + 2 * j][a] = libm::cos(w as f64 * th) * (2.0 / n).sqrt();
+            t[3 + 2 * j][a] = -libm::sin(w as f64 * th) * (2.0 / n).sqrt();
         }
     }
     t

@@ -151,13 +151,13 @@ pub fn grad_case(method: Method, task: &str, seed: u64, rows: usize) -> Result<G
     let mut rng = Rng::new(seed, Stream::Eval, u64::MAX);
     let mut draw = |n: usize, scale: f64| -> Vec<f64> { (0..n).map(|_| rng.normal() * scale).collect() };
     let obs = draw(rows * od, 1.0);
-    let act: Vec<f64> = draw(rows * ad, 0.5).iter().map(|v| v.tanh()).collect();
+    let act: Vec<f64> = draw(rows * ad, 0.5).iter().map(|&v| libm::tanh(v)).collect();
     let next_obs = draw(rows * od, 1.0);
     let reward: Vec<f64> = draw(rows, 1.0).iter().map(|v| -v.abs().min(4.0)).collect();
     let done: Vec<f64> = (0..rows).map(|r| (r % 3 == 2) as u8 as f64).collect();
     let eps1 = draw(rows * ad, 1.0);
     let eps2 = draw(rows * ad, 1.0);
-    let (log_alpha, gamma, target_entropy) = (0.2f64.ln(), 0.99, 0.0);
+    let (log_alpha, gamma, target_entropy) = (libm::log(0.2), 0.99, 0.0);
     let batch = Batch {
         rows,
         obs: obs.clone(),
@@ -166,7 +166,7 @@ pub fn grad_case(method: Method, task: &str, seed: u64, rows: usize) -> Result<G
         next_obs: next_obs.clone(),
         done: done.clone(),
     };
-    let alpha = log_alpha.exp();
+    let alpha = libm::exp(log_alpha);
     let mut s2 = ActorSample::default();
     let (mut buf, mut y) = (Buffers::default(), Vec::new());
     soft_target(&m.head, &m.actor, &m.critics, &batch, &eps2, alpha, gamma, &mut s2, &mut buf, &mut y);

@@ -79,7 +79,7 @@ impl PolicyHead {
         s.std.resize(rows * d, T::ZERO);
         s.logp.resize(rows, T::ZERO);
         let (lo, hi) = (T::from_f64(self.log_std_range.0), T::from_f64(self.log_std_range.1));
-        let half_log_2pi = T::from_f64(0.5 * (2.0 * std::f64::consts::PI).ln());
+        let half_log_2pi = T::from_f64(0.5 * libm::log(2.0 * std::f64::consts::PI));
         let half = T::from_f64(0.5);
         let out = s.tape.output();
         let width = actor.n_out;
@@ -329,7 +329,7 @@ impl<T: Real> Sac<T> {
         let opt_critics = [adam_for(&critics[0], config.lr), adam_for(&critics[1], config.lr)];
         let opt_alpha = Adam::new(AdamConfig::new(config.lr), 1, Vec::new());
         Self {
-            log_alpha: T::from_f64(config.ent_init.ln()),
+            log_alpha: T::from_f64(libm::log(config.ent_init)),
             config,
             head,
             actor,

@@ -70,7 +70,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .map(|o| {
                 let p = equigym_envs::math::from_pose(env.scene().world.bodies[o.body].position());
                 let x = p.rotation * nalgebra::Vector3::x();
-                (p.translation.x, p.translation.y, x.y.atan2(x.x).rem_euclid(std::f64::consts::TAU))
+                (p.translation.x, p.translation.y, libm::atan2(x.y, x.x).rem_euclid(std::f64::consts::TAU))
             })
             .collect();
         let mut success = false;

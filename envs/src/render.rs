@@ -111,7 +111,7 @@ pub fn render_scene(scene: &mut Scene, camera: &Camera, width: usize, height: us
     let forward = (camera.target - camera.eye).normalize();
     let right = forward.cross(&Vector3::z()).normalize();
     let up = right.cross(&forward);
-    let tan = (camera.fov_y.to_radians() * 0.5).tan();
+    let tan = libm::tan(camera.fov_y.to_radians() * 0.5);
     let aspect = width as f64 / height as f64;
     let light = Vector::new(0.35, 0.25, 1.0).normalize();
     let eye = Vector::new(camera.eye.x as f32, camera.eye.y as f32, camera.eye.z as f32);

@@ -81,7 +81,7 @@ impl EpisodeRng {
     pub fn normal(&mut self) -> f64 {
         let u1: f64 = 1.0 - self.0.random::<f64>();
         let u2: f64 = self.0.random::<f64>();
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        (-2.0 * libm::log(u1)).sqrt() * libm::cos(std::f64::consts::TAU * u2)
     }
 
     pub fn next_u64(&mut self) -> u64 {

@@ -16,6 +16,23 @@
 //! but let an arm link 22-30 mm into an object or the peg in a few episodes (measured before
 //! [`penetration_depth`] stopped trusting parry's `contact` query alone, which over-reported
 //! such grazes; not re-measured).
+//!
+//! The robot's island gets 2 more substeps (`robot_extra_substeps`): a finger held at its travel
+//! limit and pulled by the arm against the fixed Square peg sank 6.1, 7.3, 7.7 mm into it over
+//! the last three steps of an adversarial episode (`DEPTH_TRACE=square:16:398 depth_probe 20`
+//! with none; the finger's limit projection, `RobotRig::enforce_position_limits`, puts back what
+//! the solver lets through). Over 3 tasks x 60 adversarial episodes (`depth_probe 60 rsub=N`,
+//! lift / stack / square), deepest object in the table and deepest robot collider in the table
+//! or an object: none 2.49 / 3.07 / 1.13 and 3.50 / 3.43 / 5.09 mm; 1 more 2.93 / 2.80 / 0.65
+//! and 2.71 / 4.13 / 4.15 mm; 2 more 1.90 / 1.95 / 0.92 and 2.06 / 2.37 / 3.91 mm. Cost
+//! (`physics_sweep 6 rsub=0 rsub=1 "" ...`, two alternating rounds on a loaded machine):
+//! adversarial control steps/s 735 / 658 with none, 528 / 639 with 1, 464 / 512 with 2 (about
+//! 0.7x), and the 20 s hold slip max 0.59 / 0.58 / 1.04 mm (test bound 2 mm).
+//!
+//! Soft CCD (`soft_ccd_prediction`) stays off: with 10 mm (and no extra robot substeps), the
+//! same 60-episode probe put objects 3.94 / 2.76 / 1.85 mm into the table and robot colliders
+//! 4.31 / 3.90 / 3.09 mm into objects (measured before the depth query's GJK check, which can
+//! only lower them), no better than without it.
 
 use nalgebra::Isometry3;
 use rapier3d::prelude::*;
@@ -42,6 +59,9 @@ pub const CONTACT_FREQUENCY: f32 = 480.0;
 /// Natural frequency (Hz) of contacts against the table and other fixed bodies.
 pub const STATIC_CONTACT_FREQUENCY: f32 = 1920.0;
 
+/// Default soft-CCD prediction distance (m) of moving robot bodies and task objects.
+pub const SOFT_CCD_PREDICTION: f64 = 0.0;
+
 /// Physics and actuation settings. The defaults are the ones the shipped tasks are tuned for.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -63,6 +83,16 @@ pub struct PhysicsConfig {
     pub object_extra_substeps: usize,
     /// Extra PGS sweeps per substep for the island of a movable task object.
     pub object_extra_pgs_iterations: usize,
+    /// Extra substeps for the robot's island (always: the arm is one island). A finger held at
+    /// its travel limit and pressed against the fixed peg by the arm is a long chain of very
+    /// different masses for the iterative solver; see the module docs.
+    pub robot_extra_substeps: usize,
+    /// Soft continuous collision detection on every moving robot body and movable task object
+    /// (rapier's `soft_ccd_prediction`, m; 0 turns it off): contacts are created ahead of the
+    /// motion, up to this far along each body's velocity over a physics step, so that a finger
+    /// closing on an edge or a hand swept onto an object meets a contact before it overlaps.
+    /// See the module docs for what it changed.
+    pub soft_ccd_prediction: f64,
     /// Friction coefficient of objects and table (finger pads get a multiple of it).
     pub friction: f64,
     /// Stiffness of the arm's joint position servos (N m / rad).
@@ -97,6 +127,8 @@ impl Default for PhysicsConfig {
             pgs_iterations: 2,
             object_extra_substeps: 1,
             object_extra_pgs_iterations: 8,
+            robot_extra_substeps: 2,
+            soft_ccd_prediction: SOFT_CCD_PREDICTION,
             friction: 1.0,
             joint_stiffness: 2000.0,
             joint_damping: 100.0,
@@ -130,6 +162,7 @@ impl PhysicsConfig {
             }
         }
         for (name, v) in [
+            ("soft_ccd_prediction", self.soft_ccd_prediction),
             ("joint_damping", self.joint_damping),
             ("joint_armature", self.joint_armature),
             ("finger_armature", self.finger_armature),
@@ -150,6 +183,7 @@ impl PhysicsConfig {
             ("pgs_iterations", self.pgs_iterations),
             ("object_extra_substeps", self.object_extra_substeps),
             ("object_extra_pgs_iterations", self.object_extra_pgs_iterations),
+            ("robot_extra_substeps", self.robot_extra_substeps),
         ] {
             if v > 100 {
                 return Err(EnvError::InvalidConfig(format!("{name} must be at most 100, got {v}")));

@@ -26,7 +26,7 @@ impl PlanarRotation {
             return Err(Error::InvalidGroup(format!("rotation angle must be finite, got {angle}")));
         }
         let angle = angle.rem_euclid(std::f64::consts::TAU);
-        Ok(Self { angle, cos: angle.cos(), sin: angle.sin() })
+        Ok(Self { angle, cos: libm::cos(angle), sin: libm::sin(angle) })
     }
 
     /// The k-th of n equal turns, with exact values at multiples of a quarter turn.
@@ -38,7 +38,7 @@ impl PlanarRotation {
             return Self { angle: std::f64::consts::FRAC_PI_2 * quarter as f64, cos, sin };
         }
         let angle = std::f64::consts::TAU * k as f64 / n as f64;
-        Self { angle, cos: angle.cos(), sin: angle.sin() }
+        Self { angle, cos: libm::cos(angle), sin: libm::sin(angle) }
     }
 
     /// Angle in [0, 2 pi).
@@ -71,7 +71,7 @@ impl PlanarRotation {
             1 => (self.cos, self.sin),
             w => {
                 let a = self.angle * w as f64;
-                (a.cos(), a.sin())
+                (libm::cos(a), libm::sin(a))
             }
         };
         [[c, -s], [s, c]]

@@ -27,7 +27,7 @@ fn constant_policy(eps: f64, format: &str) -> Vec<u8> {
 /// A two-layer ReLU policy with fixed pseudo-random weights (every row's arithmetic matters).
 fn random_policy() -> Vec<u8> {
     let (inp, hidden) = (OBS + CHUNK + EMB, 37);
-    let w = |n: usize, salt: f64| (0..n).map(|i| 0.3 * ((i as f64) * 0.7548 + salt).sin()).collect::<Vec<f64>>();
+    let w = |n: usize, salt: f64| (0..n).map(|i| 0.3 * libm::sin((i as f64) * 0.7548 + salt)).collect::<Vec<f64>>();
     policy_bytes(
         vec![
             (w(hidden * inp, 0.1), w(hidden, 0.2), hidden, inp),
@@ -40,7 +40,7 @@ fn random_policy() -> Vec<u8> {
 /// An exported policy file from (weight, bias, n_out, n_in) layers.
 fn policy_bytes(layers: Vec<(Vec<f64>, Vec<f64>, usize, usize)>, format: &str) -> Vec<u8> {
     let abar: Vec<f64> = (0..T).map(|t| 1.0 - 0.09 * t as f64).collect();
-    let emb: Vec<f64> = (0..T * EMB).map(|i| (i as f64 * 0.3).cos()).collect();
+    let emb: Vec<f64> = (0..T * EMB).map(|i| libm::cos(i as f64 * 0.3)).collect();
     let mut tensors: Vec<(String, Vec<u8>, Vec<usize>)> = vec![
         ("alphas_cumprod".into(), bytes_f64(&abar), vec![T]),
         ("time_embedding".into(), bytes_f64(&emb), vec![T, EMB]),
@@ -129,7 +129,7 @@ fn batched_latent_steps_equal_single_ones() {
         s.reset(k as u64).unwrap();
     }
     // The same latent for every row: only the observations tell the rows apart.
-    let w: Vec<f64> = (0..3 * CHUNK).map(|i| ((i % CHUNK) as f64 * 0.37).sin()).collect();
+    let w: Vec<f64> = (0..3 * CHUNK).map(|i| libm::sin((i % CHUNK) as f64 * 0.37)).collect();
     let decoded: Vec<Vec<f64>> = single.iter_mut().map(|s| s.decode(&w[..CHUNK]).unwrap()).collect();
     assert!(decoded[0] != decoded[1] && decoded[1] != decoded[2], "the policy must depend on the observation");
     let steps = step_batch(&mut batch, &w).unwrap();
@@ -159,7 +159,7 @@ fn latent_vector_env_equals_single_envs_for_any_thread_count() {
     let n = 7; // not a multiple of the kernel's four-row block
     let seeds: Vec<u64> = (0..n as u64).map(|k| 40 + k).collect();
     let latents =
-        |t: usize| -> Vec<f64> { (0..n * CHUNK).map(|i| 2.0 * ((i * 31 + t * 7) as f64 * 0.113).sin()).collect() };
+        |t: usize| -> Vec<f64> { (0..n * CHUNK).map(|i| 2.0 * libm::sin((i * 31 + t * 7) as f64 * 0.113)).collect() };
     // Reference: seven single environments; one episode of three latent steps each.
     let mut singles: Vec<LatentEnv> = (0..n).map(|_| make()).collect();
     let mut want = Vec::new();

@@ -112,7 +112,7 @@ fn representations_are_orthogonal_homomorphisms() {
             }
             // Acting equals multiplying by the matrix.
             let g = PlanarRotation::new(0.7).unwrap();
-            let x: Vec<f64> = (0..d).map(|i| (i as f64 * 0.37).sin()).collect();
+            let x: Vec<f64> = (0..d).map(|i| libm::sin(i as f64 * 0.37)).collect();
             let mut y = x.clone();
             rep.act(&g, &mut y).unwrap();
             let m = rep.matrix(&g);

@@ -91,7 +91,7 @@ pub trait Real:
 }
 
 macro_rules! real_impl {
-    ($t:ty, $tanh:expr) => {
+    ($t:ty, $tanh:expr, $exp:expr, $ln:expr, $ln_1p:expr) => {
         impl Real for $t {
             const ZERO: Self = 0.0;
             const ONE: Self = 1.0;
@@ -113,15 +113,15 @@ macro_rules! real_impl {
             }
             #[inline(always)]
             fn exp(self) -> Self {
-                <$t>::exp(self)
+                $exp(self)
             }
             #[inline(always)]
             fn ln(self) -> Self {
-                <$t>::ln(self)
+                $ln(self)
             }
             #[inline(always)]
             fn ln_1p(self) -> Self {
-                <$t>::ln_1p(self)
+                $ln_1p(self)
             }
             #[inline(always)]
             fn sqrt(self) -> Self {
@@ -154,8 +154,9 @@ macro_rules! real_impl {
         }
     };
 }
-real_impl!(f32, tanh_f32);
-real_impl!(f64, f64::tanh);
+// exp, ln and ln_1p from the `libm` crate, not the system C library (see clippy.toml).
+real_impl!(f32, tanh_f32, libm::expf, libm::logf, libm::log1pf);
+real_impl!(f64, libm::tanh, libm::exp, libm::log, libm::log1p);
 
 /// Below this |x|, tanh uses its odd Taylor series to x^13 (truncation < 1e-9 there).
 const TANH_SERIES_BELOW: f32 = 0.4;

@@ -1,5 +1,5 @@
 //! Solver settings on the command line of the physics probes (`examples/depth_probe.rs`,
-//! `examples/physics_sweep.rs`): `it=4,sub=12,pgs=1,osub=8,opgs=0,stab=1,rsub=0`, any subset,
+//! `examples/physics_sweep.rs`): `it=4,sub=12,pgs=1,osub=8,opgs=0,ccd=10,stab=1,rsub=0`, any subset,
 //! the rest from the shipped defaults (the empty string is the shipped setting).
 //!
 //! - `it`: solver substeps per physics step (`PhysicsConfig::solver_iterations`);
@@ -8,8 +8,9 @@
 //! - `pgs`: PGS sweeps per substep (`PhysicsConfig::pgs_iterations`);
 //! - `osub`, `opgs`: extra substeps and PGS sweeps of a task object's island
 //!   (`PhysicsConfig::object_extra_substeps`, `object_extra_pgs_iterations`);
-//! - `stab`: rapier's stabilisation iterations per substep (not a `PhysicsConfig` field);
-//! - `rsub`: extra substeps requested by every robot link (not a `PhysicsConfig` field).
+//! - `ccd`: soft-CCD prediction distance in mm (`PhysicsConfig::soft_ccd_prediction`; 0: off);
+//! - `rsub`: extra substeps of the robot's island (`PhysicsConfig::robot_extra_substeps`);
+//! - `stab`: rapier's stabilisation iterations per substep (not a `PhysicsConfig` field).
 
 use equigym_envs::world::PhysicsConfig;
 use equigym_envs::{Env, EnvConfig};
@@ -20,14 +21,13 @@ pub struct Setting {
     pub name: String,
     pub physics: PhysicsConfig,
     pub stabilization: Option<usize>,
-    pub robot_extra_substeps: usize,
 }
 
 impl Setting {
     pub fn parse(text: &str) -> Result<Setting, String> {
         let mut physics = PhysicsConfig::default();
         let period = physics.control_period();
-        let (mut stabilization, mut robot_extra_substeps) = (None, 0);
+        let mut stabilization = None;
         for kv in text.split(',').filter(|kv| !kv.is_empty()) {
             let (k, v) = kv.split_once('=').ok_or_else(|| format!("{kv:?} is not key=value"))?;
             let v: usize = v.parse().map_err(|_| format!("{v:?} is not a count"))?;
@@ -41,12 +41,13 @@ impl Setting {
                 "osub" => physics.object_extra_substeps = v,
                 "opgs" => physics.object_extra_pgs_iterations = v,
                 "stab" => stabilization = Some(v),
-                "rsub" => robot_extra_substeps = v,
-                _ => return Err(format!("unknown key {k:?} (it, sub, pgs, osub, opgs, stab, rsub)")),
+                "rsub" => physics.robot_extra_substeps = v,
+                "ccd" => physics.soft_ccd_prediction = v as f64 * 1e-3,
+                _ => return Err(format!("unknown key {k:?} (it, sub, pgs, osub, opgs, ccd, stab, rsub)")),
             }
         }
         physics.validate().map_err(|e| e.to_string())?;
-        Ok(Setting { name: text.to_string(), physics, stabilization, robot_extra_substeps })
+        Ok(Setting { name: text.to_string(), physics, stabilization })
     }
 
     /// Settings from the command-line arguments from `first` on (the shipped one if none).
@@ -76,15 +77,9 @@ impl Setting {
 
     /// Apply the world-level overrides after a reset (the config goes into `EnvConfig`).
     pub fn apply(&self, env: &mut Env) {
-        let links: Vec<_> = env.scene().rig.moving_bodies().collect();
         let world = &mut env.scene_mut().world;
         if let Some(s) = self.stabilization {
             world.integration_parameters.num_internal_stabilization_iterations = s;
-        }
-        if self.robot_extra_substeps > 0 {
-            for b in links {
-                world.bodies[b].set_additional_solver_iterations(self.robot_extra_substeps);
-            }
         }
     }
 }

@@ -118,7 +118,7 @@ impl Waypoints {
     /// Yaw of an object about the world z axis.
     pub fn yaw(pose: &Isometry3<f64>) -> f64 {
         let x = pose.rotation * Vector3::x();
-        x.y.atan2(x.x)
+        libm::atan2(x.y, x.x)
     }
 
     /// The action for the commanded point, a rotation and a gripper width (with noise).
@@ -153,7 +153,7 @@ pub(crate) fn top_down_turn(env: &Env, finger_yaw: f64, period: f64) -> f64 {
     let scene = env.scene();
     let home = scene.robot().tcp_pose(scene.base(), &env.task().scene_spec().home_q).rotation;
     let finger_dir = home * (scene.robot().fingers[0].origin.rotation * scene.robot().fingers[0].axis.into_inner());
-    let home_finger_yaw = finger_dir.y.atan2(finger_dir.x);
+    let home_finger_yaw = libm::atan2(finger_dir.y, finger_dir.x);
     let mut turn = (finger_yaw - home_finger_yaw).rem_euclid(period);
     if turn > period / 2.0 {
         turn -= period;

@@ -152,8 +152,14 @@ impl RobotRig {
             }
             let builder =
                 if frame == 0 { RigidBodyBuilder::fixed().pose(to_pose(&base)) } else { RigidBodyBuilder::dynamic() };
-            let body =
-                world.insert_body(builder.gravity_scale(0.0).can_sleep(false).additional_mass_properties(mprops));
+            let body = world.insert_body(
+                builder
+                    .gravity_scale(0.0)
+                    .can_sleep(false)
+                    .soft_ccd_prediction(config.soft_ccd_prediction as f32)
+                    .additional_solver_iterations(config.robot_extra_substeps)
+                    .additional_mass_properties(mprops),
+            );
             let groups = link_groups(frame, &none);
             let colour = colour_code(LINK_COLOURS[frame % 2]);
             let mut cols = Vec::new();
@@ -220,6 +226,8 @@ impl RobotRig {
                 RigidBodyBuilder::dynamic()
                     .gravity_scale(0.0)
                     .can_sleep(false)
+                    .soft_ccd_prediction(config.soft_ccd_prediction as f32)
+                    .additional_solver_iterations(config.robot_extra_substeps)
                     .additional_mass_properties(mass_properties(&f.inertia, &Isometry3::identity(), &f.link)?),
             );
             let mut cols = Vec::new();

@@ -39,6 +39,7 @@ pub fn add_boxes(
         RigidBodyBuilder::dynamic()
             .additional_solver_iterations(scene.config.object_extra_substeps)
             .additional_pgs_iterations(scene.config.object_extra_pgs_iterations)
+            .soft_ccd_prediction(scene.config.soft_ccd_prediction as f32)
     };
     let body = scene.world.insert_body(builder);
     let groups = if fixed {

@@ -141,7 +141,7 @@ impl Task for Lift {
             return 1.0;
         }
         let grasp = if evaluation.term("grasped") > 0.5 { 0.25 } else { 0.0 };
-        (1.0 - (10.0 * evaluation.term("reach_distance")).tanh() + grasp) / 2.25
+        (1.0 - libm::tanh(10.0 * evaluation.term("reach_distance")) + grasp) / 2.25
     }
 
     fn objects(&self) -> &[TaskObject] {

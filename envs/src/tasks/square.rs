@@ -184,9 +184,9 @@ impl Task for Square {
             return 1.0;
         }
         let grasped = e.term("grasped") > 0.5;
-        let reach = 0.1 * (1.0 - (10.0 * e.term("reach_distance")).tanh()) + if grasped { 0.25 } else { 0.0 };
+        let reach = 0.1 * (1.0 - libm::tanh(10.0 * e.term("reach_distance"))) + if grasped { 0.25 } else { 0.0 };
         let lift = if grasped && e.term("nut_height") > 0.01 {
-            0.35 + 0.35 * (1.0 - (10.0 * e.term("nut_peg_xy_distance")).tanh())
+            0.35 + 0.35 * (1.0 - libm::tanh(10.0 * e.term("nut_peg_xy_distance")))
         } else {
             0.0
         };

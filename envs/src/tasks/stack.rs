@@ -126,9 +126,9 @@ impl Task for Stack {
             return 1.0;
         }
         let grasped = e.term("grasped") > 0.5;
-        let reach = 0.25 * (1.0 - (10.0 * e.term("reach_distance")).tanh()) + if grasped { 0.25 } else { 0.0 };
+        let reach = 0.25 * (1.0 - libm::tanh(10.0 * e.term("reach_distance"))) + if grasped { 0.25 } else { 0.0 };
         let lift = if grasped && e.term("cubeA_height") > 0.01 {
-            1.0 + 0.5 * (1.0 - (10.0 * e.term("cubes_xy_distance")).tanh())
+            1.0 + 0.5 * (1.0 - libm::tanh(10.0 * e.term("cubes_xy_distance")))
         } else {
             0.0
         };
