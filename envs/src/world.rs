@@ -356,3 +356,55 @@ pub fn link_collider(s: &LinkShape, offset: &Isometry3<f64>) -> ColliderBuilder 
     let (shape, pose) = link_shape(s);
     ColliderBuilder::new(shape).position(to_pose(&(offset * pose))).density(0.0)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A world holding two parentless colliders at the given centres.
+    fn pair(
+        a: ColliderBuilder,
+        pa: [f32; 3],
+        b: ColliderBuilder,
+        pb: [f32; 3],
+    ) -> (PhysicsWorld, ColliderHandle, ColliderHandle) {
+        let mut world = PhysicsWorld::new();
+        let ha = world.insert_collider(a.translation(Vector::new(pa[0], pa[1], pa[2])), None);
+        let hb = world.insert_collider(b.translation(Vector::new(pb[0], pb[1], pb[2])), None);
+        (world, ha, hb)
+    }
+
+    fn depth_both_ways(world: &PhysicsWorld, a: ColliderHandle, b: ColliderHandle) -> f64 {
+        let (ab, ba) = (penetration_depth(world, a, b), penetration_depth(world, b, a));
+        assert!((ab - ba).abs() < 1e-9, "depth depends on the order: {ab} vs {ba}");
+        ab
+    }
+
+    #[test]
+    fn boxes_overlapping_apart_and_touching() {
+        let cube = || ColliderBuilder::cuboid(0.02, 0.02, 0.02);
+        for (gap, want) in [(-0.002f32, 0.002), (-0.0005, 0.0005), (0.001, 0.0), (0.0, 0.0)] {
+            let (w, a, b) = pair(cube(), [0.0, 0.0, 0.0], cube(), [0.04 + gap, 0.01, 0.0]);
+            let got = depth_both_ways(&w, a, b);
+            assert!((got - want).abs() < 2e-5, "gap {gap}: depth {got}, want {want}");
+        }
+    }
+
+    #[test]
+    fn a_capsule_is_measured_from_its_segment() {
+        // An upright arm-link capsule (radius 5 cm) beside a 3.2 cm square peg, overlapping by
+        // 3 mm, grazing 1 micrometre apart, and crossing the peg's vertical edge diagonally.
+        let capsule = || ColliderBuilder::capsule_z(0.1, 0.05);
+        let peg = || ColliderBuilder::cuboid(0.016, 0.016, 0.1);
+        for (x, want) in [(0.066 - 0.003, 0.003), (0.066 + 1e-6, 0.0)] {
+            let (w, a, b) = pair(capsule(), [x, 0.0, 0.0], peg(), [0.0, 0.0, 0.0]);
+            let got = depth_both_ways(&w, a, b);
+            assert!((got - want).abs() < 2e-5, "capsule at x = {x}: depth {got}, want {want}");
+        }
+        // Towards the peg's edge along the diagonal: the segment is 0.05 - 0.002 from the edge.
+        let d = 0.048 / std::f32::consts::SQRT_2 + 0.016;
+        let (w, a, b) = pair(capsule(), [d, d, 0.0], peg(), [0.0, 0.0, 0.0]);
+        let got = depth_both_ways(&w, a, b);
+        assert!((got - 0.002).abs() < 2e-5, "diagonal capsule: depth {got}, want 0.002");
+    }
+}
