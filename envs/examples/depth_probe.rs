@@ -15,6 +15,8 @@ use std::time::Instant;
 use equigym_envs::rng::EpisodeRng;
 use equigym_envs::world::deepest_penetration;
 use equigym_envs::Env;
+use rapier3d::parry::query;
+use rapier3d::prelude::{ColliderHandle, PhysicsWorld};
 
 mod shared;
 use shared::adversarial::random_target;
@@ -63,55 +65,13 @@ fn probe(setting: &Setting, episodes: u64) {
                         .rig
                         .colliders()
                         .enumerate()
-                        .map(|(i, c)| (i, deepest_penetration(&scene.world, [c], &objects)))
-                        .filter(|(_, d)| *d > 1e-4)
-                        .map(|(i, d)| {
-                            let c = scene.rig.colliders().nth(i).unwrap();
-                            // what the narrow phase has for this collider and each object
+                        .map(|(i, c)| (i, c, deepest_penetration(&scene.world, [c], &objects)))
+                        .filter(|(_, _, d)| *d > 1e-4)
+                        .map(|(i, c, d)| {
                             let pairs: Vec<String> = objects
                                 .iter()
                                 .filter(|o| deepest_penetration(&scene.world, [c], &[**o]) > 1e-4)
-                                .map(|o| {
-                                    let (ca, cb) = (&scene.world.colliders[c], &scene.world.colliders[*o]);
-                                    // independent check for a capsule: radius minus the distance
-                                    // from its segment to the other shape
-                                    let seg = ca.shape().as_capsule().map(|cap| {
-                                        let d = rapier3d::parry::query::distance(
-                                            ca.position(),
-                                            &cap.segment,
-                                            cb.position(),
-                                            cb.shape(),
-                                        )
-                                        .unwrap();
-                                        cap.radius - d.distance
-                                    });
-                                    let gjk = rapier3d::parry::query::intersection_test(
-                                        ca.position(),
-                                        ca.shape(),
-                                        cb.position(),
-                                        cb.shape(),
-                                    )
-                                    .map(|i| i.intersecting);
-                                    let swapped = rapier3d::parry::query::contact(
-                                        cb.position(),
-                                        cb.shape(),
-                                        ca.position(),
-                                        ca.shape(),
-                                        0.0,
-                                    )
-                                    .ok()
-                                    .flatten()
-                                    .map(|k| k.dist);
-                                    let seg = format!("{seg:?}, gjk intersecting {gjk:?}, swapped {swapped:?}");
-                                    match scene.world.narrow_phase.contact_pair(c, *o) {
-                                        None => format!("no pair; capsule check {seg:?}"),
-                                        Some(p) => format!(
-                                            "pair active {} deepest {:?}; capsule check {seg:?}",
-                                            p.has_any_active_contact(),
-                                            p.find_deepest_contact().map(|(_, k)| k.dist)
-                                        ),
-                                    }
-                                })
+                                .map(|o| raw_readings(&scene.world, c, *o))
                                 .collect();
                             format!("c{i} {:.1} ({})", d * 1e3, pairs.join("; "))
                         })
@@ -168,4 +128,21 @@ fn probe(setting: &Setting, episodes: u64) {
             (episodes * 400) as f64 / start.elapsed().as_secs_f64()
         );
     }
+}
+
+/// What each query says about robot collider `c` and object `o`, for `DEPTH_TRACE`: rapier's
+/// narrow phase (its deepest contact distance, negative when overlapping), parry's `contact` in
+/// the swapped order, GJK's intersection test and, for a capsule, its radius minus the distance
+/// from its segment (the readings `world::penetration_depth` weighs against each other).
+fn raw_readings(world: &PhysicsWorld, c: ColliderHandle, o: ColliderHandle) -> String {
+    let (ca, cb) = (&world.colliders[c], &world.colliders[o]);
+    let narrow = world.narrow_phase.contact_pair(c, o).map(|p| p.find_deepest_contact().map(|(_, k)| k.dist));
+    let swapped =
+        query::contact(cb.position(), cb.shape(), ca.position(), ca.shape(), 0.0).ok().flatten().map(|k| k.dist);
+    let gjk = query::intersection_test(ca.position(), ca.shape(), cb.position(), cb.shape()).map(|i| i.intersecting);
+    let capsule = ca.shape().as_capsule().and_then(|cap| {
+        let d = query::distance(ca.position(), &cap.segment, cb.position(), cb.shape()).ok()?;
+        Some(cap.radius - d.distance)
+    });
+    format!("narrow phase {narrow:?}, swapped {swapped:?}, gjk intersecting {gjk:?}, capsule overlap {capsule:?}")
 }

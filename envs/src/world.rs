@@ -19,8 +19,8 @@
 //!
 //! The robot's island gets 2 more substeps (`robot_extra_substeps`): a finger held at its travel
 //! limit and pulled by the arm against the fixed Square peg sank 6.1, 7.3, 7.7 mm into it over
-//! the last three steps of an adversarial episode (`DEPTH_TRACE=square:16:398 depth_probe 20`
-//! with none; the finger's limit projection, `RobotRig::enforce_position_limits`, puts back what
+//! the last three steps of an adversarial episode (`DEPTH_TRACE=square:16:398 depth_probe 20
+//! rsub=0`; the finger's limit projection, `RobotRig::enforce_position_limits`, puts back what
 //! the solver lets through). Over 3 tasks x 60 adversarial episodes (`depth_probe 60 rsub=N`,
 //! lift / stack / square), deepest object in the table and deepest robot collider in the table
 //! or an object: none 2.49 / 3.07 / 1.13 and 3.50 / 3.43 / 5.09 mm; 1 more 2.93 / 2.80 / 0.65
@@ -298,18 +298,15 @@ pub fn penetration_depth(world: &PhysicsWorld, a: ColliderHandle, b: ColliderHan
         }
     }
     // The true depth does not depend on the order of the shapes; the query's over-reports did.
-    let depth = |p1: &rapier3d::parry::math::Pose, s1: &dyn Shape, p2: &rapier3d::parry::math::Pose, s2: &dyn Shape| {
-        match query::contact(p1, s1, p2, s2, 0.0) {
-            Ok(Some(c)) => (-c.dist as f64).max(0.0),
-            _ => 0.0,
-        }
-    };
-    depth(ca.position(), ca.shape(), cb.position(), cb.shape()).min(depth(
-        cb.position(),
-        cb.shape(),
-        ca.position(),
-        ca.shape(),
-    ))
+    contact_depth(ca, cb).min(contact_depth(cb, ca))
+}
+
+/// How deep parry's `contact` query says `a` is in `b` (0 when apart).
+fn contact_depth(a: &Collider, b: &Collider) -> f64 {
+    match rapier3d::parry::query::contact(a.position(), a.shape(), b.position(), b.shape(), 0.0) {
+        Ok(Some(c)) => (-c.dist as f64).max(0.0),
+        _ => 0.0,
+    }
 }
 
 /// The deepest penetration between any collider of `a` and any of `b`.
