@@ -46,8 +46,14 @@ def test_a_ray_sweep_runs_every_trial_and_a_resumed_one_adds_nothing(tmp_path):
         rows = list(csv.DictReader(f))
     assert [int(r["env_steps"]) for r in rows][-2:] == [32, 64]
     before = log.read_text()
+    experiment = tmp_path / "tune" / "steer"
+    trials = sorted(p.name for p in experiment.iterdir() if p.is_dir())
     steer.main([*argv, "--resume"])
     assert log.read_text() == before  # restored as finished: nothing evaluated twice
+    # Tuner.restore, not a fresh Tuner over the agents' checkpoints: a fresh one would have made
+    # a new trial directory (and its own trial ids) beside the first.
+    assert sorted(p.name for p in experiment.iterdir() if p.is_dir()) == trials
     record = json.loads((tmp_path / "sweep.json").read_text())
     assert len(record["invocations"]) == 2 and all("wall_seconds" in i for i in record["invocations"])
+    assert [i["restored"] for i in record["invocations"]] == [False, True]
     assert record["runs"] == 1

@@ -56,11 +56,9 @@ impl Rng {
         self.0.random::<f64>()
     }
 
-    /// Standard normal (Box-Muller: the same on every platform).
+    /// Standard normal ([`equigym_envs::rng::standard_normal`]: the same on every platform).
     pub fn normal(&mut self) -> f64 {
-        let u1 = 1.0 - self.0.random::<f64>();
-        let u2 = self.0.random::<f64>();
-        (-2.0 * libm::log(u1)).sqrt() * libm::cos(std::f64::consts::TAU * u2)
+        equigym_envs::rng::standard_normal(&mut self.0)
     }
 
     /// Uniform index in 0..n (n > 0).

@@ -76,6 +76,11 @@ struct SummaryFile {
     /// Absent in summaries of older versions (then the split starts again from zero).
     #[serde(default)]
     seconds_by_activity: TimeSplit,
+    /// Primitive env steps the evaluation episodes ran, over all invocations: what the
+    /// evaluation's time is spent on (its physics and one DDIM call per chunk). Absent in older
+    /// summaries.
+    #[serde(default)]
+    eval_env_steps: u64,
 }
 
 /// Tenths of a second, for files people read.
@@ -277,6 +282,8 @@ pub struct RunSummary {
     pub seconds: f64,
     /// The run's wall-clock seconds by activity, summed over every invocation that advanced it.
     pub time: TimeSplit,
+    /// Primitive env steps the evaluation episodes ran, summed like `time`.
+    pub eval_env_steps: u64,
     /// Hidden regular fields of the equivariant nets (0 for DSRL).
     pub fields: usize,
     pub params_actor: usize,
@@ -411,6 +418,8 @@ struct Runner {
     /// Where the run's time went, over all its invocations (kept in `summary.json`, not in the
     /// checkpoint: wall time is not reproducible).
     time: TimeSplit,
+    /// Primitive env steps run by the evaluation episodes (kept beside `time`, in `summary.json`).
+    eval_env_steps: u64,
 }
 
 /// Wall-clock seconds of a run by activity, summed over its invocations and written to
@@ -440,17 +449,20 @@ impl Runner {
             params_hash: format!("{:016x}", params_hash(&self.sac)),
             seconds: tenths(self.elapsed),
             seconds_by_activity: TimeSplit { rollout: tenths(t.rollout), train: tenths(t.train), eval: tenths(t.eval) },
+            eval_env_steps: self.eval_env_steps,
         };
         let path = dir.join(SUMMARY_FILE);
         let text = serde_json::to_string(&file).map_err(|e| io_err(&path, e))?;
         write_atomic(&path, format!("{text}\n").as_bytes())
     }
 
-    /// The time split of the invocations before this one (from `summary.json`, if readable).
-    fn load_time_split(&mut self, dir: &Path) {
+    /// The time split and evaluation step count of the invocations before this one (from
+    /// `summary.json`, if readable).
+    fn load_cost_record(&mut self, dir: &Path) {
         let prior = std::fs::read(dir.join(SUMMARY_FILE)).ok();
         if let Some(file) = prior.and_then(|b| serde_json::from_slice::<SummaryFile>(&b).ok()) {
             self.time = file.seconds_by_activity;
+            self.eval_env_steps = file.eval_env_steps;
         }
     }
 
@@ -547,6 +559,7 @@ impl Runner {
                 self.eval_envs.iter_mut().enumerate().filter(|(k, _)| active[*k]).map(|(_, e)| e).collect();
             let results = step_envs(&self.pool, &mut refs, &self.policy, &latents)?;
             for (&k, r) in idx.iter().zip(&results) {
+                self.eval_env_steps += r.executed as u64;
                 if r.success {
                     wins += 1;
                 }
@@ -750,6 +763,7 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         diagnostics: Vec::new(),
         obs_dim,
         time: TimeSplit::default(),
+        eval_env_steps: 0,
     };
     let dir = cfg.run_dir();
     std::fs::create_dir_all(&dir).map_err(|e| io_err(&dir, e))?;
@@ -773,7 +787,7 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         let c: Checkpoint = postcard::from_bytes(&bytes).map_err(corrupt)?;
         r.restore(c, &ckpt_path)?;
         r.write_log(&dir)?;
-        r.load_time_split(&dir);
+        r.load_cost_record(&dir);
     } else {
         for e in r.envs.iter_mut() {
             let seed = r.streams.env_seeds.next_u64();
@@ -836,6 +850,7 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         grad_steps: r.grad_steps,
         seconds: r.elapsed,
         time: r.time,
+        eval_env_steps: r.eval_env_steps,
         fields,
         params_actor,
         params_critic,

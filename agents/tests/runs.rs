@@ -97,6 +97,10 @@ fn threads_resume_and_golden() {
                 "{method:?}: the split is the run's, not the invocation's"
             );
             assert!(t.rollout > 0.0 && t.train > 0.0 && t.eval > stopped.time.eval);
+            // The evaluation's step count is deterministic: summed over the two invocations it
+            // is the uninterrupted run's, and a finished run's restart reads it back.
+            assert!(0 < stopped.eval_env_steps && stopped.eval_env_steps < a.eval_env_steps);
+            assert_eq!((resumed.eval_env_steps, again.eval_env_steps), (a.eval_env_steps, a.eval_env_steps));
             for d in [b_dir, c_dir] {
                 let _ = std::fs::remove_dir_all(d);
             }

@@ -67,6 +67,7 @@ pub fn steer_run<'py>(
     split.set_item("train", s.time.train)?;
     split.set_item("eval", s.time.eval)?;
     d.set_item("seconds_by_activity", split)?;
+    d.set_item("eval_env_steps", s.eval_env_steps)?;
     d.set_item("params_hash", format!("{:016x}", s.params_hash))?;
     d.set_item("fields", s.fields)?;
     d.set_item("params_actor", s.params_actor)?;

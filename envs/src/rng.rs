@@ -52,6 +52,17 @@ impl SeedUse {
     }
 }
 
+/// One standard normal draw from `rng`: Box-Muller on two uniform draws, with `log` and `cos`
+/// from the pinned `libm` crate, so a stream gives the same normals on every platform (a
+/// table-based sampler such as `rand_distr`'s ziggurat would too, but this exact sequence is
+/// what the committed golden runs and seeds were recorded with). The one home of this formula:
+/// the episode streams here and the steering agents' streams both call it.
+pub fn standard_normal<R: rand::Rng + ?Sized>(rng: &mut R) -> f64 {
+    let u1: f64 = 1.0 - rng.random::<f64>();
+    let u2: f64 = rng.random::<f64>();
+    (-2.0 * libm::log(u1)).sqrt() * libm::cos(std::f64::consts::TAU * u2)
+}
+
 /// A serialisable, seedable random stream (ChaCha8).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct EpisodeRng(ChaCha8Rng);
@@ -77,11 +88,9 @@ impl EpisodeRng {
         self.0.random_range(lo..hi)
     }
 
-    /// Standard normal draw (Box-Muller, so the stream is the same on every platform).
+    /// Standard normal draw ([`standard_normal`]).
     pub fn normal(&mut self) -> f64 {
-        let u1: f64 = 1.0 - self.0.random::<f64>();
-        let u2: f64 = self.0.random::<f64>();
-        (-2.0 * libm::log(u1)).sqrt() * libm::cos(std::f64::consts::TAU * u2)
+        standard_normal(&mut self.0)
     }
 
     pub fn next_u64(&mut self) -> u64 {

@@ -64,7 +64,7 @@ def run(
 ) -> dict[str, Any]:
     """One Rust steering run (see the module docs); returns its summary (``run_dir``, ``rows``,
     ``env_steps``, ``grad_steps``, ``seconds``, ``seconds_by_activity`` (``rollout``,
-    ``train``, ``eval``), ``params_hash``, ``fields``, parameter counts)."""
+    ``train``, ``eval``), ``eval_env_steps``, ``params_hash``, ``fields``, parameter counts)."""
     return _core.steer_run(
         method,
         task,
@@ -212,7 +212,8 @@ def sweep(a: argparse.Namespace) -> None:
     storage = str(out / "tune")
     name = "steer"
     started = time.time()
-    if a.resume and tune.Tuner.can_restore(str(Path(storage) / name)):
+    restored = a.resume and tune.Tuner.can_restore(str(Path(storage) / name))
+    if restored:
         tuner = tune.Tuner.restore(str(Path(storage) / name), resources, resume_errored=True)
     else:
         tuner = tune.Tuner(
@@ -223,7 +224,7 @@ def sweep(a: argparse.Namespace) -> None:
     record_path = out / "sweep.json"
     record = json.loads(record_path.read_text()) if a.resume and record_path.exists() else {}
     invocations = record.get("invocations", [])
-    invocations.append({"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "args": vars(a)})
+    invocations.append({"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "args": vars(a), "restored": restored})
     _write_sweep_record(record_path, invocations, out)
     try:
         results = tuner.fit()

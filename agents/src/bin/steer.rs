@@ -91,11 +91,16 @@ fn main() -> ExitCode {
     match run(&cfg) {
         Ok(s) => {
             println!(
-                "{}: {} env steps, {} gradient steps, {:.1} s, final success {}, params {:016x}",
+                "{}: {} env steps, {} gradient steps, {:.1} s (collecting {:.1} s, training {:.1} s, \
+                 evaluating {:.1} s over {} env steps), final success {}, params {:016x}",
                 s.run_dir.display(),
                 s.env_steps,
                 s.grad_steps,
                 s.seconds,
+                s.time.rollout,
+                s.time.train,
+                s.time.eval,
+                s.eval_env_steps,
                 s.rows.last().map_or("-".into(), |r| r.success_rate.to_string()),
                 s.params_hash
             );
