@@ -20,22 +20,24 @@ import argparse
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-import numpy as np
-
 from baselines import steer
-from baselines.report import LABELS, load_runs, write_report
+from baselines.report import LABELS, load_runs, mean_se, write_report
 
 
 def summary(out: Path, task: str, methods: list[str], base: float) -> str:
-    """The before/after table; each run is labelled by its own run.json (Rust or SB3 agent)."""
-    rows = [f"{'':30s} {'success':>8s}", f"{'before (base EDP)':30s} {base:8.2f}"]
+    """The before/after table: mean +- standard error over the seeds, and each seed's value (a
+    single run is shown as that run alone); each run is labelled by its own run.json (Rust or SB3
+    agent)."""
+    rows = [f"{'':30s} {'success':>12s}", f"{'before (base EDP)':30s} {base:12.2f}"]
     for (run_task, key), runs in sorted(load_runs(out).items()):
         if run_task != task or key.removeprefix("rust-") not in methods:
             continue
         finals = [r["rows"][-1]["success_rate"] for r in runs]
         peaks = [max(row["success_rate"] for row in r["rows"]) for r in runs]
-        rows.append(f"{LABELS[key] + ' final':30s} {np.mean(finals):8.2f}   ({len(finals)} seeds)")
-        rows.append(f"{LABELS[key] + ' peak':30s} {np.mean(peaks):8.2f}")
+        for what, values in (("final", finals), ("peak", peaks)):
+            seeds = ", ".join(f"{v:.2f}" for v in values)
+            runs_said = f"{len(values)} seeds: {seeds}" if len(values) > 1 else "1 run"
+            rows.append(f"{LABELS[key] + ' ' + what:30s} {mean_se(values, 2):>12s}   ({runs_said})")
     return "\n".join(rows)
 
 

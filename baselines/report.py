@@ -51,6 +51,13 @@ def load_base(root: str | Path | list[str | Path]) -> dict[str, float]:
     }
 
 
+def mean_se(values: list[float], digits: int) -> str:
+    """``mean +- s.e.`` over seeds (sample standard deviation / sqrt(n)); one value alone."""
+    if len(values) == 1:
+        return f"{values[0]:.{digits}f}"
+    return f"{np.mean(values):.{digits}f} +- {np.std(values, ddof=1) / np.sqrt(len(values)):.{digits}f}"
+
+
 def write_report(root: str | Path | list[str | Path], out: str | Path, base: dict[str, float] | None = None) -> str:
     runs = load_runs(root)
     base = {**load_base(root), **(base or {})}
@@ -71,9 +78,7 @@ def write_report(root: str | Path | list[str | Path], out: str | Path, base: dic
     ]
 
     def cell(values: list[float]) -> str:
-        if len(values) == 1:
-            return f"{values[0]:.3f}"
-        return f"{np.mean(values):.3f} +- {np.std(values, ddof=1) / np.sqrt(len(values)):.3f}"
+        return mean_se(values, 3)
 
     # Peak over evaluations is the paper's Table 1 metric; with few noisy evaluations it is biased
     # upwards, so the mean of each run's last two evaluations is reported beside it.

@@ -204,5 +204,18 @@ def test_main_job_steers_with_the_rust_agents(tmp_path, capsys):
         run_dir = tmp_path / "lift" / "equi" / f"seed{seed}"
         assert json.loads((run_dir / "run.json").read_text())["agent"] == "rust"
         assert [int(r["env_steps"]) for r in read(run_dir / "log.csv")][-2:] == [64, 128]
-    assert "Equi-DSRL (Rust) final" in printed and "(2 seeds)" in printed and "before (base EDP)" in printed
+    assert "before (base EDP)" in printed
+    # Mean +- standard error over the seeds, then each seed's value.
+    finals = [float(read(tmp_path / "lift" / "equi" / f"seed{s}" / "log.csv")[-1]["success_rate"]) for s in (0, 1)]
+    mean, se = sum(finals) / 2, abs(finals[0] - finals[1]) / 2
+    line = next(row for row in printed.splitlines() if row.startswith("Equi-DSRL (Rust) final"))
+    assert line.split()[3:] == [
+        f"{mean:.2f}",
+        "+-",
+        f"{se:.2f}",
+        "(2",
+        "seeds:",
+        f"{finals[0]:.2f},",
+        f"{finals[1]:.2f})",
+    ]
     assert (tmp_path / "report" / "lift.png").exists()
