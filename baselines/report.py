@@ -37,8 +37,15 @@ def load_runs(root: str | Path | list[str | Path]) -> dict[tuple[str, str], list
             with open(log) as f:
                 rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f)]
             method = f"rust-{meta['method']}" if meta.get("agent") == "rust" else meta["method"]
+            summary = log.parent / "summary.json"
             if rows:
-                runs[(log.parents[2].name, method)].append({"meta": meta, "rows": rows})
+                runs[(log.parents[2].name, method)].append(
+                    {
+                        "meta": meta,
+                        "rows": rows,
+                        "summary": json.loads(summary.read_text()) if summary.exists() else None,
+                    }
+                )
     return runs
 
 
@@ -49,6 +56,40 @@ def load_base(root: str | Path | list[str | Path]) -> dict[str, float]:
         for d in _roots(root)
         for p in sorted(d.glob("*/base.json"))
     }
+
+
+def _cost_table(runs: dict, tasks: list[str], methods: list[str], labels: dict[str, str]) -> list[str]:
+    """Where the runs' time went, from the Rust runs' ``summary.json`` (``seconds_by_activity``,
+    ``eval_env_steps``): mean wall seconds per run by activity (one run per core), and the
+    evaluation's seconds per primitive env step (its physics, with one DDIM call per chunk)."""
+    rows = []
+    for t in tasks:
+        for m in methods:
+            sums = [r["summary"] for r in runs.get((t, m), []) if r["summary"] and r["summary"].get("eval_env_steps")]
+            if not sums:
+                continue
+            act = {k: float(np.mean([x["seconds_by_activity"][k] for x in sums])) for k in ("rollout", "train", "eval")}
+            total = sum(act.values())
+            eval_steps = float(np.mean([x["eval_env_steps"] for x in sums]))
+            ms_per_step = (
+                1000 * sum(x["seconds_by_activity"]["eval"] for x in sums) / sum(x["eval_env_steps"] for x in sums)
+            )
+            rows.append(
+                f"| {t} | {labels[m]} | {len(sums)} | {act['rollout']:.0f} | {act['train']:.0f} | {act['eval']:.0f} "
+                f"| {eval_steps:,.0f} | {ms_per_step:.2f} | {total / 60:.1f} |"
+            )
+    if not rows:
+        return []
+    return [
+        "",
+        "Where a run's time went (Rust runs, `summary.json`; mean over the runs, wall seconds of one "
+        "run on one core, so other load on the machine shows here):",
+        "",
+        "| task | method | runs | collecting (s) | gradient steps (s) | evaluating (s) | evaluation env steps "
+        "| evaluation ms per env step | minutes per run (one thread) |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+        *rows,
+    ]
 
 
 def mean_se(values: list[float], digits: int) -> str:
@@ -122,6 +163,7 @@ def write_report(root: str | Path | list[str | Path], out: str | Path, base: dic
             qs = [q for q in qs if q]
             cells.append(f"{np.mean([max(q) for q in qs]):.1f} / {np.mean([q[-1] for q in qs]):.1f}" if qs else "-")
         lines.append(f"| {t} | " + " | ".join(cells) + " |")
+    lines += _cost_table(runs, tasks, methods, labels)
     text = "\n".join(lines) + "\n"
     (out / "table.md").write_text(text)
     try:

@@ -219,3 +219,9 @@ def test_main_job_steers_with_the_rust_agents(tmp_path, capsys):
         f"{finals[1]:.2f})",
     ]
     assert (tmp_path / "report" / "lift.png").exists()
+    # The report says where the runs' time went, from their summary.json.
+    summaries = [json.loads((tmp_path / "lift" / "equi" / f"seed{s}" / "summary.json").read_text()) for s in (0, 1)]
+    assert all(x["eval_env_steps"] > 0 for x in summaries)
+    table = (tmp_path / "report" / "table.md").read_text()
+    row = next(line for line in table.splitlines() if line.startswith("| lift | Equi-DSRL (Rust) | 2 |"))
+    assert row.split("|")[7].strip() == f"{sum(x['eval_env_steps'] for x in summaries) / 2:,.0f}"
