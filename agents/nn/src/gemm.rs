@@ -32,6 +32,8 @@ const MR: usize = 6;
 const MR_EDGE: usize = 4;
 /// Columns per register block (two 8-lane f32 vectors).
 const NR: usize = 16;
+/// Columns per register block where the CPU has AVX-512 (two 16-lane f32 vectors).
+const NR_WIDE: usize = 32;
 /// Narrower column block for edges.
 const NR_HALF: usize = 8;
 
@@ -41,47 +43,80 @@ pub fn gemm<T: Real>(m: usize, n: usize, k: usize, a: &[T], ta: Trans, b: &[T], 
     assert!(a.len() >= m * k && b.len() >= k * n && c.len() >= m * n, "gemm: slices shorter than {m}x{k} . {k}x{n}");
     #[cfg(target_arch = "x86_64")]
     {
-        if crate::has_fast_fma() {
+        if crate::has_avx512() {
             // SAFETY: the CPU supports the features the function is compiled for.
+            unsafe { gemm_avx512(m, n, k, a, ta, b, c, accumulate) };
+            return;
+        }
+        if crate::has_fast_fma() {
+            // SAFETY: as above.
             unsafe { gemm_avx2(m, n, k, a, ta, b, c, accumulate) };
             return;
         }
     }
-    gemm_body(m, n, k, a, ta, b, c, accumulate)
+    gemm_body::<T, NR>(m, n, k, a, ta, b, c, accumulate)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 #[allow(clippy::too_many_arguments)]
 unsafe fn gemm_avx2<T: Real>(m: usize, n: usize, k: usize, a: &[T], ta: Trans, b: &[T], c: &mut [T], accumulate: bool) {
-    gemm_body(m, n, k, a, ta, b, c, accumulate)
+    gemm_body::<T, NR>(m, n, k, a, ta, b, c, accumulate)
+}
+
+/// The same loops with 32-column blocks (two 16-lane vectors per row, 12 of the 32 AVX-512
+/// registers): every element is still one chain of fused multiply-adds from `p = 0` up, so the
+/// bits are the AVX2 path's.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vl,avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn gemm_avx512<T: Real>(
+    m: usize,
+    n: usize,
+    k: usize,
+    a: &[T],
+    ta: Trans,
+    b: &[T],
+    c: &mut [T],
+    accumulate: bool,
+) {
+    gemm_body::<T, NR_WIDE>(m, n, k, a, ta, b, c, accumulate)
 }
 
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn gemm_body<T: Real>(m: usize, n: usize, k: usize, a: &[T], ta: Trans, b: &[T], c: &mut [T], accumulate: bool) {
+fn gemm_body<T: Real, const W: usize>(
+    m: usize,
+    n: usize,
+    k: usize,
+    a: &[T],
+    ta: Trans,
+    b: &[T],
+    c: &mut [T],
+    accumulate: bool,
+) {
     let (ars, acs) = match ta {
         Trans::N => (k, 1),
         Trans::T => (1, m),
     };
     let mut i0 = 0;
     while i0 + MR <= m {
-        row_block::<T, MR>(i0, n, k, a, ars, acs, b, c, accumulate);
+        row_block::<T, MR, W>(i0, n, k, a, ars, acs, b, c, accumulate);
         i0 += MR;
     }
     if i0 + MR_EDGE <= m {
-        row_block::<T, MR_EDGE>(i0, n, k, a, ars, acs, b, c, accumulate);
+        row_block::<T, MR_EDGE, W>(i0, n, k, a, ars, acs, b, c, accumulate);
         i0 += MR_EDGE;
     }
     while i0 < m {
-        row_block::<T, 1>(i0, n, k, a, ars, acs, b, c, accumulate);
+        row_block::<T, 1, W>(i0, n, k, a, ars, acs, b, c, accumulate);
         i0 += 1;
     }
 }
 
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn row_block<T: Real, const R: usize>(
+fn row_block<T: Real, const R: usize, const W: usize>(
     i0: usize,
     n: usize,
     k: usize,
@@ -93,6 +128,10 @@ fn row_block<T: Real, const R: usize>(
     accumulate: bool,
 ) {
     let mut j0 = 0;
+    while j0 + W <= n {
+        micro::<T, R, W>(i0, j0, n, k, a, ars, acs, b, c, accumulate);
+        j0 += W;
+    }
     while j0 + NR <= n {
         micro::<T, R, NR>(i0, j0, n, k, a, ars, acs, b, c, accumulate);
         j0 += NR;
@@ -192,6 +231,32 @@ mod tests {
                 let mut c = c0.clone();
                 gemm(m, n, k, &a, ta, &b, &mut c, true);
                 assert_eq!(c, naive(m, n, k, &a, ta, &b, &c0), "{m}x{n}x{k} {ta:?}");
+            }
+        }
+    }
+
+    /// Every copy this machine can run (portable, AVX2 + FMA, AVX-512) gives the same bits, on
+    /// shapes that exercise the 32-, 16-, 8- and 1-column blocks.
+    #[test]
+    fn every_instruction_set_copy_gives_the_same_bits() {
+        for &(m, n, k) in &[(7, 61, 19), (13, 32, 40), (6, 47, 5), (256, 192, 24)] {
+            for ta in [Trans::N, Trans::T] {
+                let (a, b, c0) = (data(m * k, 6), data(k * n, 7), data(m * n, 8));
+                let mut portable = c0.clone();
+                gemm_body::<f32, NR>(m, n, k, &a, ta, &b, &mut portable, true);
+                #[cfg(target_arch = "x86_64")]
+                {
+                    if crate::has_fast_fma() {
+                        let mut c = c0.clone();
+                        unsafe { gemm_avx2(m, n, k, &a, ta, &b, &mut c, true) };
+                        assert_eq!(c, portable, "AVX2 {m}x{n}x{k} {ta:?}");
+                    }
+                    if crate::has_avx512() {
+                        let mut c = c0.clone();
+                        unsafe { gemm_avx512(m, n, k, &a, ta, &b, &mut c, true) };
+                        assert_eq!(c, portable, "AVX-512 {m}x{n}x{k} {ta:?}");
+                    }
+                }
             }
         }
     }

@@ -32,9 +32,16 @@
 //!   `target_feature` function are vectorised by LLVM to the selected features and keep the
 //!   lane arithmetic explicit, so the crate has no SIMD dependency.
 //!
-//! Transcendentals (`tanh`, `exp`, `ln`, `sqrt`) come from Rust's `std`, which calls the
-//! platform's libm: bit-identical across x86-64 Linux machines with the same glibc; `sqrt` is
-//! exact everywhere.
+//! - **Wider registers, same order.** Where the CPU has AVX-512, [`gemm`] runs a third copy
+//!   with 32-column blocks (two 16-lane vectors per row); each element is still the same chain
+//!   of fused multiply-adds, so the bits are those of the AVX2 and portable copies (tested on
+//!   the machine that runs the tests). On an Intel Xeon with AVX-512, `examples/bench` gave
+//!   1.1-1.25x the Equi-DSRL and 1.15-1.35x the DSRL gradient steps/s of the AVX2 copy (two
+//!   alternating pairs, one core).
+//!
+//! Transcendentals (`tanh`, `exp`, `ln`) come from the pinned `libm` crate, not the platform's
+//! C library (the f32 `tanh` of the layers is the crate's own [`tanh_f32`]); `sqrt` is exact
+//! everywhere.
 //!
 //! ## Measured speed (AMD EPYC, one thread; `benches/results/agents.md`, `python benches/agents.py`)
 //!
@@ -200,6 +207,19 @@ pub fn tanh_f32(x: f32) -> f32 {
         -v
     } else {
         v
+    }
+}
+
+/// Whether this machine runs the AVX-512 copy of the matrix kernel (wider register blocks; the
+/// same bits as the other copies).
+pub fn has_avx512() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx512vl") && has_fast_fma()
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
     }
 }
 
