@@ -83,6 +83,17 @@ fn align_x(axis: &Vector3<f64>) -> UnitQuaternion<f64> {
         .unwrap_or_else(|| UnitQuaternion::from_axis_angle(&Vector3::z_axis(), std::f64::consts::PI))
 }
 
+/// What every body of the robot (links and fingers) shares: gravity scale 0 (ideal gravity
+/// compensation, see the module docs), never asleep, the robot's soft CCD and its island's
+/// extra substeps.
+fn robot_body(builder: RigidBodyBuilder, config: &PhysicsConfig) -> RigidBodyBuilder {
+    builder
+        .gravity_scale(0.0)
+        .can_sleep(false)
+        .soft_ccd_prediction(config.soft_ccd_prediction as f32)
+        .additional_solver_iterations(config.robot_extra_substeps)
+}
+
 fn mass_properties(i: &LinkInertia, offset: &Isometry3<f64>, what: &str) -> Result<MassProperties> {
     let finite = i.mass.is_finite() && i.centre_of_mass.iter().chain(i.principal_inertia.iter()).all(|v| v.is_finite());
     if !finite || i.mass < 0.0 || i.principal_inertia.iter().any(|v| *v < 0.0) {
@@ -152,14 +163,7 @@ impl RobotRig {
             }
             let builder =
                 if frame == 0 { RigidBodyBuilder::fixed().pose(to_pose(&base)) } else { RigidBodyBuilder::dynamic() };
-            let body = world.insert_body(
-                builder
-                    .gravity_scale(0.0)
-                    .can_sleep(false)
-                    .soft_ccd_prediction(config.soft_ccd_prediction as f32)
-                    .additional_solver_iterations(config.robot_extra_substeps)
-                    .additional_mass_properties(mprops),
-            );
+            let body = world.insert_body(robot_body(builder, config).additional_mass_properties(mprops));
             let groups = link_groups(frame, &none);
             let colour = colour_code(LINK_COLOURS[frame % 2]);
             let mut cols = Vec::new();
@@ -222,14 +226,9 @@ impl RobotRig {
         let mut finger_joints = Vec::new();
         let mut finger_colliders = Vec::new();
         for f in &model.fingers {
-            let body = world.insert_body(
-                RigidBodyBuilder::dynamic()
-                    .gravity_scale(0.0)
-                    .can_sleep(false)
-                    .soft_ccd_prediction(config.soft_ccd_prediction as f32)
-                    .additional_solver_iterations(config.robot_extra_substeps)
-                    .additional_mass_properties(mass_properties(&f.inertia, &Isometry3::identity(), &f.link)?),
-            );
+            let mprops = mass_properties(&f.inertia, &Isometry3::identity(), &f.link)?;
+            let body =
+                world.insert_body(robot_body(RigidBodyBuilder::dynamic(), config).additional_mass_properties(mprops));
             let mut cols = Vec::new();
             for s in &f.shapes {
                 let c = link_collider(s, &Isometry3::identity())
