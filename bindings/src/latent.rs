@@ -271,6 +271,8 @@ pub struct LatentVecEnv {
     stepping: f64,
 }
 
+crate::vector::batch_properties!(LatentVecEnv);
+
 #[pymethods]
 impl LatentVecEnv {
     /// `num_envs` latent environments of `task` sharing `policy`, with the options of `Env` as
@@ -352,43 +354,6 @@ impl LatentVecEnv {
     }
     fn episode_seeds<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u64>> {
         self.inner.episode_seeds().into_pyarray(py)
-    }
-    #[getter]
-    fn stepping_seconds(&self) -> f64 {
-        self.stepping
-    }
-    #[setter]
-    fn set_stepping_seconds(&mut self, value: f64) {
-        self.stepping = value;
-    }
-    #[getter]
-    fn num_envs(&self) -> usize {
-        self.inner.num_envs()
-    }
-    #[getter]
-    fn threads(&self) -> usize {
-        self.inner.threads()
-    }
-    #[getter]
-    fn autoreset_mode(&self) -> &'static str {
-        self.inner.autoreset_mode().as_str()
-    }
-    /// The task environments' read-only description.
-    #[getter]
-    fn spec(&self) -> Spec {
-        Spec(self.spec.clone())
-    }
-    #[getter]
-    fn task(&self) -> &'static str {
-        self.spec.task
-    }
-    #[getter]
-    fn horizon(&self) -> usize {
-        self.spec.horizon
-    }
-    #[getter]
-    fn observation_dim(&self) -> usize {
-        self.inner.observation_dim()
     }
     #[getter]
     fn latent_dim(&self) -> usize {

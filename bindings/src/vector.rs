@@ -15,7 +15,6 @@ use pyo3::types::PyDict;
 
 use crate::errors::{invalid_input, to_py};
 use crate::options::env_config;
-use crate::Spec;
 
 /// What `step` returns: (obs, rewards, terminated, truncated, success, reset, final_obs).
 pub(crate) type StepOut<'py> = (
@@ -122,6 +121,59 @@ fn step_outputs<'py, E: BatchMember, D: ActionDecoder>(py: Python<'py>, b: &Batc
     )
 }
 
+/// The properties every batched environment class shares, defined once: the class holds the
+/// batch as `inner` (a [`BatchEnv`] of any member), its task's `spec` and the `stepping` clock.
+/// (A second `#[pymethods]` block per class: pyo3's `multiple-pymethods` feature.)
+macro_rules! batch_properties {
+    ($class:ty) => {
+        #[pymethods]
+        impl $class {
+            /// Total seconds spent inside the Rust batched step since construction (or the last
+            /// assignment, e.g. `core.stepping_seconds = 0.0`); the rest of a step's time is Python.
+            #[getter]
+            fn stepping_seconds(&self) -> f64 {
+                self.stepping
+            }
+            #[setter]
+            fn set_stepping_seconds(&mut self, value: f64) {
+                self.stepping = value;
+            }
+            #[getter]
+            fn num_envs(&self) -> usize {
+                self.inner.num_envs()
+            }
+            #[getter]
+            fn threads(&self) -> usize {
+                self.inner.threads()
+            }
+            #[getter]
+            fn autoreset_mode(&self) -> &'static str {
+                self.inner.autoreset_mode().as_str()
+            }
+            /// The read-only description shared by every environment of the batch.
+            #[getter]
+            fn spec(&self) -> $crate::Spec {
+                $crate::Spec(self.spec.clone())
+            }
+            #[getter]
+            fn task(&self) -> &'static str {
+                self.spec.task
+            }
+            #[getter]
+            fn horizon(&self) -> usize {
+                self.spec.horizon
+            }
+            #[getter]
+            fn observation_dim(&self) -> usize {
+                self.inner.observation_dim()
+            }
+        }
+    };
+}
+pub(crate) use batch_properties;
+
+batch_properties!(VecEnv);
+
 #[pymethods]
 impl VecEnv {
     /// `num_envs` environments of `task` with the options of `Env` as keyword arguments.
@@ -190,45 +242,6 @@ impl VecEnv {
         Ok(pyo3::types::PyBytes::new(py, &env.get_state().map_err(to_py)?))
     }
 
-    /// Total seconds spent inside the Rust batched step since construction (or the last
-    /// assignment, e.g. `core.stepping_seconds = 0.0`); the rest of a step's time is Python.
-    #[getter]
-    fn stepping_seconds(&self) -> f64 {
-        self.stepping
-    }
-    #[setter]
-    fn set_stepping_seconds(&mut self, value: f64) {
-        self.stepping = value;
-    }
-    #[getter]
-    fn num_envs(&self) -> usize {
-        self.inner.num_envs()
-    }
-    #[getter]
-    fn threads(&self) -> usize {
-        self.inner.threads()
-    }
-    #[getter]
-    fn autoreset_mode(&self) -> &'static str {
-        self.inner.autoreset_mode().as_str()
-    }
-    /// The read-only description shared by every environment of the batch.
-    #[getter]
-    fn spec(&self) -> Spec {
-        Spec(self.spec.clone())
-    }
-    #[getter]
-    fn task(&self) -> &'static str {
-        self.spec.task
-    }
-    #[getter]
-    fn horizon(&self) -> usize {
-        self.spec.horizon
-    }
-    #[getter]
-    fn observation_dim(&self) -> usize {
-        self.inner.observation_dim()
-    }
     #[getter]
     fn action_dim(&self) -> usize {
         self.inner.action_dim()
