@@ -38,6 +38,14 @@
 //!   the machine that runs the tests). On an Intel Xeon with AVX-512, `examples/bench` gave
 //!   1.1-1.25x the Equi-DSRL and 1.15-1.35x the DSRL gradient steps/s of the AVX2 copy (two
 //!   alternating pairs, one core).
+//! - **The pointwise and LayerNorm kernels** ([`ops`]) are compiled the same way, one
+//!   `#[inline(always)]` body per kernel in a portable, an AVX2 and an AVX-512 copy, chosen by
+//!   [`Isa::best`]; their arithmetic has no multiply-add to fuse, so the copies differ only in
+//!   vector width (tested bit for bit against the portable copy). On the AVX-512 Xeon, Tanh's
+//!   share of a DSRL gradient step fell from 14 % to 10 % of `perf` samples; the LayerNorm
+//!   statistics stay scalar (each row's sum runs in index order, and rows are strided in
+//!   memory), and the whole step moved within the noise of a loaded machine (193.8 / 186.0
+//!   before, 195.1 / 199.5 after, alternating runs of `examples/bench --only dsrl`).
 //!
 //! Transcendentals (`tanh`, `exp`, `ln`) come from the pinned `libm` crate, not the platform's
 //! C library (the f32 `tanh` of the layers is the crate's own [`tanh_f32`]); `sqrt` is exact
@@ -220,6 +228,36 @@ pub fn has_avx512() -> bool {
     #[cfg(not(target_arch = "x86_64"))]
     {
         false
+    }
+}
+
+/// A compiled copy of a kernel, by the instruction set it may use. Every copy gives the same
+/// bits (the tests compare them); only the speed differs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Isa {
+    /// Baseline x86-64 (SSE2), or whatever the target has.
+    Portable,
+    /// AVX2 + FMA.
+    Avx2,
+    /// AVX-512 (F and VL) as well.
+    Avx512,
+}
+
+impl Isa {
+    /// The widest copy this CPU runs.
+    pub fn best() -> Self {
+        if has_avx512() {
+            Self::Avx512
+        } else if has_fast_fma() {
+            Self::Avx2
+        } else {
+            Self::Portable
+        }
+    }
+
+    /// Every copy this CPU runs, narrowest first.
+    pub fn available() -> Vec<Self> {
+        [Self::Portable, Self::Avx2, Self::Avx512].into_iter().filter(|&i| i <= Self::best()).collect()
     }
 }
 
