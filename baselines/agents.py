@@ -87,12 +87,35 @@ class _Group:
         return self.enn.FieldType(self.gs, fields * [self.gs.regular_repr])
 
 
-class _ResidualLinear(nn.Module):
-    """An escnn Linear plus (for RPP) a parallel plain Linear on the same tensors, summed."""
+EQUI_INITS = ("escnn", "torch")
 
-    def __init__(self, g: _Group, in_type, out_type, residual: bool):
+
+def _torch_default_scale(linear) -> None:
+    """Scale an escnn Linear's basis coefficients so that its expanded matrix has the RMS of
+    ``torch.nn.Linear``'s default initialisation, U(+-1/sqrt(fan_in)), i.e. 1/sqrt(3 fan_in).
+
+    escnn's own scheme (generalised He) gives the 192 -> 192 and 192 -> head layers of the cpu
+    preset an RMS of about 0.072 where that is 0.042; the Rust agents start from PyTorch's
+    scale. Hidden layers are followed by a LayerNorm, so what this changes is the actor head's
+    (mean and log-std) and the first layers' scale."""
+    with torch.no_grad():
+        matrix, _ = linear.expand_parameters()
+        rms = matrix.pow(2).mean().sqrt()
+        linear.weights.mul_(1.0 / math.sqrt(3 * linear.in_type.size) / rms)
+
+
+class _ResidualLinear(nn.Module):
+    """An escnn Linear plus (for RPP) a parallel plain Linear on the same tensors, summed.
+    ``init``: ``"escnn"`` (escnn's generalised He initialisation) or ``"torch"`` (the same
+    coefficients scaled to PyTorch's default RMS, see ``_torch_default_scale``)."""
+
+    def __init__(self, g: _Group, in_type, out_type, residual: bool, init: str = "escnn"):
         super().__init__()
+        if init not in EQUI_INITS:
+            raise ValueError(f"init must be one of {EQUI_INITS}, got {init!r}")
         self.equi = g.enn.Linear(in_type, out_type)
+        if init == "torch":
+            _torch_default_scale(self.equi)
         self.plain = nn.Linear(in_type.size, out_type.size) if residual else None
         self.out_type = out_type
 
@@ -127,14 +150,14 @@ class _EquiTrunk(nn.Module):
     """in_type -> [Linear + field-tied LayerNorm + Tanh] x layers on regular fields (escnn,
     optionally RPP)."""
 
-    def __init__(self, g: _Group, in_type, hidden_fields: int, layers: int, residual: bool):
+    def __init__(self, g: _Group, in_type, hidden_fields: int, layers: int, residual: bool, init: str = "escnn"):
         super().__init__()
         mods: list[nn.Module] = []
         t = in_type
         for _ in range(layers):
             h = g.regular(hidden_fields)
             mods += [
-                _ResidualLinear(g, t, h, residual),
+                _ResidualLinear(g, t, h, residual, init),
                 _FieldNorm(h, g.order),
                 g.enn.PointwiseNonLinearity(h, "p_tanh"),
             ]
@@ -180,6 +203,7 @@ class EquiActor(BasePolicy):
         layers: int,
         residual: bool = False,
         squash: str = "radial",
+        init: str = "escnn",
         **_: Any,
     ):
         super().__init__(observation_space, action_space, features_extractor=features_extractor, squash_output=True)
@@ -188,10 +212,10 @@ class EquiActor(BasePolicy):
         g = _Group(symmetry)
         self.squash = squash
         self.in_type = g.enn.FieldType(g.gs, g.obs_reps)
-        self.trunk = _EquiTrunk(g, self.in_type, hidden_fields, layers, residual)
+        self.trunk = _EquiTrunk(g, self.in_type, hidden_fields, layers, residual, init)
         n_blocks = len(g.lat_blocks)
         self.head_type = g.enn.FieldType(g.gs, g.lat_reps + n_blocks * [g.gs.trivial_repr])
-        self.head = _ResidualLinear(g, self.trunk.out_type, self.head_type, residual)
+        self.head = _ResidualLinear(g, self.trunk.out_type, self.head_type, residual, init)
         self.register_buffer("obs_perm", torch.tensor(g.obs_perm))
         lat_dim = len(g.lat_perm)
         self.register_buffer("lat_inv", torch.tensor(np.argsort(g.lat_perm)))
@@ -255,6 +279,7 @@ class EquiCritic(BaseModel):
         layers: int,
         residual: bool = False,
         n_critics: int = 2,
+        init: str = "escnn",
         **_: Any,
     ):
         super().__init__(observation_space, action_space, features_extractor=features_extractor)
@@ -269,7 +294,7 @@ class EquiCritic(BaseModel):
         self.outs = nn.ModuleList()
         self.plain_outs = nn.ModuleList()
         for _ in range(n_critics):
-            trunk = _EquiTrunk(g, self.in_type, hidden_fields, layers, residual)
+            trunk = _EquiTrunk(g, self.in_type, hidden_fields, layers, residual, init)
             self.trunks.append(trunk)
             self.pools.append(g.enn.GroupPooling(trunk.out_type))
             self.outs.append(nn.Linear(hidden_fields, 1))
@@ -312,13 +337,14 @@ class EquiSACPolicy(SACPolicy):
         squash: str = "radial",
         equi_weight_decay: float = 1e-5,
         plain_weight_decay: float = 1e-2,
+        init: str = "escnn",
         **kwargs: Any,
     ):
         if symmetry is None:
             if task is None:
                 raise ValueError("EquiSACPolicy needs symmetry= or task=")
             symmetry = Symmetry(task)
-        self._equi = dict(symmetry=symmetry, hidden_fields=hidden_fields, layers=layers, residual=residual)
+        self._equi = dict(symmetry=symmetry, hidden_fields=hidden_fields, layers=layers, residual=residual, init=init)
         self._squash = squash
         self._decay = (equi_weight_decay, plain_weight_decay)
         kwargs.setdefault("share_features_extractor", False)

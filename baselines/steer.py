@@ -41,7 +41,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 import equigym  # noqa: F401  (registers the ids)
-from baselines.agents import EquiSACPolicy, LayerNormSACPolicy, count_parameters
+from baselines.agents import EQUI_INITS, EquiSACPolicy, LayerNormSACPolicy, count_parameters
 
 METHODS = ("dsrl", "equi", "approx", "sac")
 LATENT_IDS = {"lift": "EquiLift-Latent-v0", "stack": "EquiStack-Latent-v0", "square": "EquiSquare-Latent-v0"}
@@ -148,7 +148,13 @@ def build(
             EquiSACPolicy,
             venv,
             learning_starts=preset["warmup"],
-            policy_kwargs=dict(task=task, hidden_fields=fields, layers=preset["layers"], residual=residual),
+            policy_kwargs=dict(
+                task=task,
+                hidden_fields=fields,
+                layers=preset["layers"],
+                residual=residual,
+                init=preset.get("equi_init", "escnn"),
+            ),
             **common,
         )
     return model, make
@@ -378,6 +384,12 @@ def main(argv: list[str] | None = None) -> None:
     s.add_argument("--out", default="runs/steer")
     s.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
     s.add_argument("--ent-init", type=float, default=None, help="initial entropy coefficient (default: the preset's)")
+    s.add_argument(
+        "--equi-init",
+        choices=EQUI_INITS,
+        default=None,
+        help="equivariant layers' initialisation: escnn's (default) or scaled to PyTorch's default RMS",
+    )
     s.add_argument("--no-joint-limits", action="store_true")
     s.add_argument("--eval-every", type=int, default=2000)
     s.add_argument("--eval-episodes", type=int, default=50)
@@ -404,6 +416,8 @@ def main(argv: list[str] | None = None) -> None:
         preset = {"name": a.preset, **PRESETS[a.preset]}
         if a.ent_init is not None:
             preset["ent_init"] = a.ent_init
+        if a.equi_init is not None:
+            preset["equi_init"] = a.equi_init
         run(
             a.method,
             a.task,

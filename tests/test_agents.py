@@ -22,9 +22,10 @@ def policy(**kw):
     return EquiSACPolicy(OBS, LATENT, lambda _: 3e-4, task="lift", hidden_fields=8, layers=2, **kw)
 
 
-def test_equivariant_actor_and_invariant_critics():
+@pytest.mark.parametrize("init", ["escnn", "torch"])
+def test_equivariant_actor_and_invariant_critics(init):
     sym = Symmetry("lift")
-    pol = policy()
+    pol = policy(init=init)
     obs = torch.randn(6, 22, dtype=torch.float32)
     act = torch.rand(6, 40) * 2 - 1
     mean, log_std = pol.actor.dist_params(obs)
@@ -45,6 +46,25 @@ def test_equivariant_actor_and_invariant_critics():
         gact = torch.tensor(sym.act_latent(act.numpy(), g=g))
         for q, gq in zip(qs, pol.critic(go, gact)):
             np.testing.assert_allclose(gq.detach().numpy(), q.detach().numpy(), atol=1e-5)
+
+
+def test_torch_init_scales_every_equivariant_layer_to_pytorchs_default_rms():
+    from escnn import nn as enn
+
+    def rms_ratios(pol):
+        out = []
+        for m in pol.modules():
+            if isinstance(m, enn.Linear):
+                matrix, _ = m.expand_parameters()
+                out.append(matrix.pow(2).mean().sqrt().item() * np.sqrt(3 * m.in_type.size))
+        return np.array(out)
+
+    escnn_init, torch_init = rms_ratios(policy()), rms_ratios(policy(init="torch"))
+    assert len(torch_init) > 0
+    np.testing.assert_allclose(torch_init, 1.0, rtol=1e-5)
+    assert escnn_init.max() > 1.3  # escnn's generalised He scale is larger on the hidden layers
+    with pytest.raises(ValueError, match="init must be one of"):
+        policy(init="xavier")
 
 
 def test_radial_squash_log_det_matches_autograd():
