@@ -51,7 +51,7 @@
 //! C library (the f32 `tanh` of the layers is the crate's own [`tanh_f32`]); `sqrt` is exact
 //! everywhere.
 //!
-//! ## Measured speed (AMD EPYC, one thread; `benches/results/agents.md`, `python benches/agents.py`)
+//! ## Measured speed (AMD EPYC, one thread; `benches/results/agents-amd-epyc.md`; the Intel Xeon record is `agents.md`, `python benches/agents.py`)
 //!
 //! - [`gemm`] on the agents' layer shapes at batch 256: 35-45 GFLOP/s, about 50-67 % of the
 //!   core's measured f32 FMA peak (67-102 GFLOP/s on a shared machine). Checking the slice bounds
