@@ -42,17 +42,12 @@ const NR_HALF: usize = 8;
 pub fn gemm<T: Real>(m: usize, n: usize, k: usize, a: &[T], ta: Trans, b: &[T], c: &mut [T], accumulate: bool) {
     assert!(a.len() >= m * k && b.len() >= k * n && c.len() >= m * n, "gemm: slices shorter than {m}x{k} . {k}x{n}");
     #[cfg(target_arch = "x86_64")]
-    {
-        if crate::has_avx512() {
-            // SAFETY: the CPU supports the features the function is compiled for.
-            unsafe { gemm_avx512(m, n, k, a, ta, b, c, accumulate) };
-            return;
-        }
-        if crate::has_fast_fma() {
-            // SAFETY: as above.
-            unsafe { gemm_avx2(m, n, k, a, ta, b, c, accumulate) };
-            return;
-        }
+    match crate::Isa::best() {
+        // SAFETY: `Isa::best` names only a copy whose features the CPU has.
+        crate::Isa::Avx512 => return unsafe { gemm_avx512(m, n, k, a, ta, b, c, accumulate) },
+        // SAFETY: as above.
+        crate::Isa::Avx2 => return unsafe { gemm_avx2(m, n, k, a, ta, b, c, accumulate) },
+        crate::Isa::Portable => {}
     }
     gemm_body::<T, NR>(m, n, k, a, ta, b, c, accumulate)
 }
