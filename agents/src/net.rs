@@ -78,13 +78,29 @@ pub enum Layer<T> {
     Circulant(Circulant<T>),
 }
 
+/// The first position of a field's largest value, and that value (a NaN never wins). Written
+/// without a data-dependent branch: the critic head's group pooling compares random values, and
+/// the branchy loop's mispredictions cost 8.7 % of an Equi-DSRL gradient step (`perf` on
+/// `examples/bench --only equi`); the selects give the same result.
+#[inline(always)]
+fn first_argmax<T: Real>(field: &[T]) -> (usize, T) {
+    let (mut best, mut top) = (0, field[0]);
+    for (a, &v) in field.iter().enumerate().skip(1) {
+        let wins = v > top;
+        best = if wins { a } else { best };
+        top = if wins { v } else { top };
+    }
+    (best, top)
+}
+
 /// Activations kept by a forward pass for the backward pass.
 #[derive(Clone, Debug, Default)]
 pub struct Tape<T> {
     pub rows: usize,
-    /// `acts[0]` is the input, `acts[l + 1]` the output of layer `l`.
+    /// `acts[0]` is the input, `acts[l + 1]` the output of layer `l` (left empty for a
+    /// LayerNorm that feeds a Tanh: the two run fused, and only the Tanh's output is kept).
     pub acts: Vec<Vec<T>>,
-    /// LayerNorm: normalised values, then 1/std per row (concatenated).
+    /// LayerNorm: mean, then 1/std per row (concatenated; [`ops::layer_norm_stats`]).
     aux: Vec<Vec<T>>,
     /// PoolHead: the argmax position of each field, per row.
     argmax: Vec<Vec<u32>>,
@@ -324,6 +340,17 @@ impl<T: Real> Net<T> {
         }
     }
 
+    /// Whether layer `l` is a LayerNorm followed by a Tanh: the two run as one kernel
+    /// ([`ops::layer_norm`] with `then_tanh`), which reads the rows once while they sit in L1.
+    fn norm_feeds_tanh(&self, l: usize) -> bool {
+        matches!(self.layers[l], Layer::Norm { .. }) && matches!(self.layers.get(l + 1), Some(Layer::Tanh))
+    }
+
+    /// Whether layer `l` is a Tanh that the LayerNorm before it runs ([`Self::norm_feeds_tanh`]).
+    fn tanh_fused_into_norm(&self, l: usize) -> bool {
+        l > 0 && self.norm_feeds_tanh(l - 1)
+    }
+
     /// Forward a batch (`rows x n_in`, row-major); the output is `tape.output()`.
     pub fn forward(&self, x: &[T], rows: usize, tape: &mut Tape<T>) {
         let nl = self.layers.len();
@@ -335,9 +362,14 @@ impl<T: Real> Net<T> {
         tape.acts[0].extend_from_slice(&x[..rows * self.n_in]);
         let mut width = self.n_in;
         for (l, layer) in self.layers.iter().enumerate() {
+            if self.tanh_fused_into_norm(l) {
+                continue;
+            }
+            let fused = self.norm_feeds_tanh(l);
             let (before, after) = tape.acts.split_at_mut(l + 1);
             let input = &before[l];
-            let out = &mut after[0];
+            // a LayerNorm that feeds a Tanh writes the Tanh's output (its own is not kept)
+            let out = &mut after[usize::from(fused)];
             match layer {
                 Layer::Linear(lin) => {
                     out.resize(rows * lin.n_out, T::ZERO);
@@ -348,10 +380,9 @@ impl<T: Real> Net<T> {
                 Layer::Norm { fields, order, gain, shift, .. } => {
                     let n = fields * order;
                     ops::resize_for_overwrite(out, input.len());
-                    let aux = &mut tape.aux[l];
-                    aux.resize(rows * n + rows, T::ZERO);
-                    let (xhat, rstd) = aux.split_at_mut(rows * n);
-                    ops::layer_norm(input, out, n, gain, shift, xhat, rstd);
+                    let stats = &mut tape.aux[l];
+                    ops::resize_for_overwrite(stats, 2 * rows);
+                    ops::layer_norm(input, out, n, gain, shift, stats, fused);
                 }
                 Layer::Tanh => {
                     ops::resize_for_overwrite(out, input.len());
@@ -373,15 +404,9 @@ impl<T: Real> Net<T> {
                         let h = &input[r * width..(r + 1) * width];
                         let mut q = self.params[*b];
                         for f in 0..*fields {
-                            let field = &h[f * order..(f + 1) * order];
-                            let mut best = 0;
-                            for a in 1..*order {
-                                if field[a] > field[best] {
-                                    best = a;
-                                }
-                            }
+                            let (best, top) = first_argmax(&h[f * order..(f + 1) * order]);
                             am[r * fields + f] = best as u32;
-                            q += field[best] * self.params[*w + f];
+                            q += top * self.params[*w + f];
                         }
                         if let Some((pw, pb)) = plain {
                             let mut s = self.params[*pb];
@@ -413,6 +438,9 @@ impl<T: Real> Net<T> {
         d.clear();
         d.extend_from_slice(&dy[..rows * self.n_out]);
         for (l, layer) in self.layers.iter().enumerate().rev() {
+            if self.tanh_fused_into_norm(l) {
+                continue;
+            }
             let input = &tape.acts[l];
             let output = &tape.acts[l + 1];
             let need_dx = want_dx || l > 0;
@@ -458,8 +486,8 @@ impl<T: Real> Net<T> {
                 }
                 Layer::Norm { fields, order, g, s, gain, .. } => {
                     let n = fields * order;
-                    let aux = &tape.aux[l];
-                    let (xhat, rstd) = aux.split_at(rows * n);
+                    let stats = &tape.aux[l];
+                    let tanh_out = self.norm_feeds_tanh(l).then(|| &tape.acts[l + 2][..]);
                     match grads.as_deref_mut() {
                         Some(gr) => {
                             // per-unit gradients first, then each field's sum over its units
@@ -467,7 +495,7 @@ impl<T: Real> Net<T> {
                             scratch.clear();
                             scratch.resize(2 * n, T::ZERO);
                             let (dg, ds) = scratch.split_at_mut(n);
-                            ops::layer_norm_backward(d, n, gain, xhat, rstd, Some((dg, ds)));
+                            ops::layer_norm_backward(d, n, gain, input, stats, tanh_out, Some((dg, ds)));
                             for (f, (dgf, dsf)) in dg.chunks_exact(*order).zip(ds.chunks_exact(*order)).enumerate() {
                                 for (a, b) in dgf.iter().zip(dsf) {
                                     gr[*g + f] += *a;
@@ -475,7 +503,7 @@ impl<T: Real> Net<T> {
                                 }
                             }
                         }
-                        None => ops::layer_norm_backward(d, n, gain, xhat, rstd, None),
+                        None => ops::layer_norm_backward(d, n, gain, input, stats, tanh_out, None),
                     }
                 }
                 Layer::Tanh => ops::tanh_backward(output, d),

@@ -140,32 +140,50 @@ fn tanh_backward_body<T: Real>(y: &[T], dy: &mut [T]) {
 /// `examples/bench --only equi`).
 pub const LAYER_NORM_ROW_BLOCK: usize = 8;
 
+/// The per-row statistics [`layer_norm`] keeps for its backward pass, in one buffer of
+/// `2 x rows`: the means, then the reciprocal standard deviations.
+pub fn layer_norm_stats<T>(stats: &[T]) -> (&[T], &[T]) {
+    stats.split_at(stats.len() / 2)
+}
+
 kernel_copies! {
-    /// LayerNorm over each row of `x` (`rows x n`) into `y`, with gain and shift; keeps the
-    /// normalised values `xhat` and `1/std` per row for the backward pass.
+    /// LayerNorm over each row of `x` (`rows x n`) into `y`, with gain and shift, followed by
+    /// Tanh when `then_tanh` (`y = tanh(xhat * gain + shift)`, bit for bit what [`tanh_into`]
+    /// gives on the LayerNorm's output). Keeps each row's mean and `1/std` in `stats`
+    /// (`2 x rows`, see [`layer_norm_stats`]); the backward pass recomputes the normalised values
+    /// from `x` with the same operations.
+    ///
+    /// # Why fused, and why the normalised values are not kept
+    ///
+    /// At batch 256 a 192-unit activation is 196 KB, and a gradient step's activations (about
+    /// 20 MB) do not fit in the core's L2: the kernels wait on memory, not arithmetic. LayerNorm
+    /// then Tanh as two kernels wrote three arrays (normalised values, LayerNorm output, Tanh
+    /// output) and read two; fused, a block of rows is read once while it sits in L1 and one
+    /// array is written. The same bits come out (the golden runs are unchanged).
     pub fn layer_norm / layer_norm_on(
         x: &[T],
         y: &mut [T],
         n: usize,
         gain: &[T],
         shift: &[T],
-        xhat: &mut [T],
-        rstd: &mut [T],
+        stats: &mut [T],
+        then_tanh: bool,
     ) => layer_norm_body;
 }
 
 #[inline(always)]
-fn layer_norm_body<T: Real>(x: &[T], y: &mut [T], n: usize, gain: &[T], shift: &[T], xhat: &mut [T], rstd: &mut [T]) {
+fn layer_norm_body<T: Real>(x: &[T], y: &mut [T], n: usize, gain: &[T], shift: &[T], stats: &mut [T], then_tanh: bool) {
     const B: usize = LAYER_NORM_ROW_BLOCK;
-    let rows = rstd.len().min(x.len() / n.max(1));
+    let rows = (stats.len() / 2).min(x.len() / n.max(1));
     let (gain, shift) = (&gain[..n], &shift[..n]);
+    let (mean, rstd) = stats.split_at_mut(stats.len() / 2);
     let mut r0 = 0;
     while r0 + B <= rows {
-        layer_norm_block::<T, B>(r0, x, y, n, gain, shift, xhat, rstd);
+        layer_norm_block::<T, B>(r0, x, y, n, gain, shift, mean, rstd, then_tanh);
         r0 += B;
     }
     while r0 < rows {
-        layer_norm_block::<T, 1>(r0, x, y, n, gain, shift, xhat, rstd);
+        layer_norm_block::<T, 1>(r0, x, y, n, gain, shift, mean, rstd, then_tanh);
         r0 += 1;
     }
 }
@@ -181,8 +199,9 @@ fn layer_norm_block<T: Real, const R: usize>(
     n: usize,
     gain: &[T],
     shift: &[T],
-    xhat: &mut [T],
-    rstd: &mut [T],
+    mean_out: &mut [T],
+    rstd_out: &mut [T],
+    then_tanh: bool,
 ) {
     let inv_n = T::from_f64(1.0 / n as f64);
     let eps = T::from_f64(LAYER_NORM_EPS);
@@ -205,25 +224,32 @@ fn layer_norm_block<T: Real, const R: usize>(
     }
     for b in 0..R {
         let r = T::ONE / (var[b] * inv_n + eps).sqrt();
-        rstd[r0 + b] = r;
-        let at = (r0 + b) * n;
-        let (out, xh) = (&mut y[at..at + n], &mut xhat[at..at + n]);
-        for (((v, o), h), (g, s)) in src[b].iter().zip(out.iter_mut()).zip(xh.iter_mut()).zip(gain.iter().zip(shift)) {
-            *h = (*v - mean[b]) * r;
-            *o = *h * *g + *s;
+        mean_out[r0 + b] = mean[b];
+        rstd_out[r0 + b] = r;
+        let out = &mut y[(r0 + b) * n..(r0 + b + 1) * n];
+        for ((v, o), (g, s)) in src[b].iter().zip(out.iter_mut()).zip(gain.iter().zip(shift)) {
+            *o = ((*v - mean[b]) * r) * *g + *s;
+        }
+        if then_tanh {
+            for o in out.iter_mut() {
+                *o = o.tanh();
+            }
         }
     }
 }
 
 kernel_copies! {
-    /// Backward through [`layer_norm`]: `dy` (rows x n) becomes `dx` in place; gain and shift
-    /// gradients are added (rows in order) when given.
+    /// Backward through [`layer_norm`]: `dy` (rows x n, the gradient of its output `y`) becomes
+    /// the gradient of `x` in place; gain and shift gradients are added (rows in order) when
+    /// given. `tanh_out` is the forward's `y` when it ran `then_tanh` (the backward through Tanh,
+    /// `dy *= 1 - y^2`, runs first on each block of rows).
     pub fn layer_norm_backward / layer_norm_backward_on(
         dy: &mut [T],
         n: usize,
         gain: &[T],
-        xhat: &[T],
-        rstd: &[T],
+        x: &[T],
+        stats: &[T],
+        tanh_out: Option<&[T]>,
         grads: Option<(&mut [T], &mut [T])>,
     ) => layer_norm_backward_body;
 }
@@ -233,35 +259,52 @@ fn layer_norm_backward_body<T: Real>(
     dy: &mut [T],
     n: usize,
     gain: &[T],
-    xhat: &[T],
-    rstd: &[T],
+    x: &[T],
+    stats: &[T],
+    tanh_out: Option<&[T]>,
     mut grads: Option<(&mut [T], &mut [T])>,
 ) {
     const B: usize = LAYER_NORM_ROW_BLOCK;
     let inv_n = T::from_f64(1.0 / n as f64);
-    let rows = rstd.len().min(dy.len() / n.max(1));
-    if let Some((dg, ds)) = grads.as_mut() {
-        for (row, xh) in dy.chunks_exact(n).zip(xhat.chunks_exact(n)).take(rows) {
-            for j in 0..n {
-                dg[j] += row[j] * xh[j];
-                ds[j] += row[j];
+    let rows = (stats.len() / 2).min(dy.len() / n.max(1));
+    let (mean, rstd) = layer_norm_stats(stats);
+    let gain = &gain[..n];
+    // the normalised values of one block of rows, recomputed as the forward computed them
+    let mut xhat = vec![T::ZERO; B * n];
+    let mut r0 = 0;
+    while r0 < rows {
+        let rb = B.min(rows - r0);
+        let block = r0 * n..(r0 + rb) * n;
+        if let Some(t) = tanh_out {
+            tanh_backward_body(&t[block.clone()], &mut dy[block.clone()]);
+        }
+        for (b, xh) in xhat.chunks_exact_mut(n).take(rb).enumerate() {
+            let (m, r) = (mean[r0 + b], rstd[r0 + b]);
+            for (h, v) in xh.iter_mut().zip(&x[(r0 + b) * n..(r0 + b + 1) * n]) {
+                *h = (*v - m) * r;
             }
         }
-    }
-    let gain = &gain[..n];
-    let mut r0 = 0;
-    while r0 + B <= rows {
-        layer_norm_backward_block::<T, B>(r0, dy, n, gain, xhat, rstd, inv_n);
-        r0 += B;
-    }
-    while r0 < rows {
-        layer_norm_backward_block::<T, 1>(r0, dy, n, gain, xhat, rstd, inv_n);
-        r0 += 1;
+        if let Some((dg, ds)) = grads.as_mut() {
+            for (row, xh) in dy[block.clone()].chunks_exact(n).zip(xhat.chunks_exact(n)) {
+                for j in 0..n {
+                    dg[j] += row[j] * xh[j];
+                    ds[j] += row[j];
+                }
+            }
+        }
+        if rb == B {
+            layer_norm_backward_block::<T, B>(r0, dy, n, gain, &xhat, rstd, inv_n);
+        } else {
+            for b in 0..rb {
+                layer_norm_backward_block::<T, 1>(r0 + b, dy, n, gain, &xhat[b * n..(b + 1) * n], rstd, inv_n);
+            }
+        }
+        r0 += rb;
     }
 }
 
 /// Rows `r0..r0 + R` of [`layer_norm_backward`]'s input gradient, their two statistics
-/// accumulated side by side.
+/// accumulated side by side; `xhat` holds the block's normalised values (`R x n`).
 #[inline(always)]
 fn layer_norm_backward_block<T: Real, const R: usize>(
     r0: usize,
@@ -275,7 +318,7 @@ fn layer_norm_backward_block<T: Real, const R: usize>(
     let (mut mean_d, mut mean_dx) = ([T::ZERO; R], [T::ZERO; R]);
     {
         let d_rows: [&[T]; R] = std::array::from_fn(|b| &dy[(r0 + b) * n..(r0 + b + 1) * n]);
-        let x_rows: [&[T]; R] = std::array::from_fn(|b| &xhat[(r0 + b) * n..(r0 + b + 1) * n]);
+        let x_rows: [&[T]; R] = std::array::from_fn(|b| &xhat[b * n..(b + 1) * n]);
         for (j, g) in gain.iter().enumerate() {
             for b in 0..R {
                 let d = d_rows[b][j] * *g;
@@ -287,7 +330,7 @@ fn layer_norm_backward_block<T: Real, const R: usize>(
     for b in 0..R {
         let (md, mdx, r) = (mean_d[b] * inv_n, mean_dx[b] * inv_n, rstd[r0 + b]);
         let at = (r0 + b) * n;
-        for ((v, h), g) in dy[at..at + n].iter_mut().zip(&xhat[at..at + n]).zip(gain) {
+        for ((v, h), g) in dy[at..at + n].iter_mut().zip(&xhat[b * n..(b + 1) * n]).zip(gain) {
             let d = *v * *g;
             *v = (d - md - *h * mdx) * r;
         }
@@ -349,17 +392,52 @@ mod tests {
                 let mut sums = gain.clone();
                 add_column_sums_on(isa, &d0, &mut sums);
                 out.extend([y.clone(), d, sums]);
-                let (mut xhat, mut rstd) = (vec![0.0; len], vec![0.0; rows]);
-                layer_norm_on(isa, &x, &mut y, n, &gain, &shift, &mut xhat, &mut rstd);
-                let (mut d, mut dg, mut ds) = (d0.clone(), vec![0.0; n], vec![0.0; n]);
-                layer_norm_backward_on(isa, &mut d, n, &gain, &xhat, &rstd, Some((&mut dg, &mut ds)));
-                out.extend([y, xhat, rstd, d, dg, ds]);
+                for then_tanh in [false, true] {
+                    let mut stats = vec![0.0; 2 * rows];
+                    layer_norm_on(isa, &x, &mut y, n, &gain, &shift, &mut stats, then_tanh);
+                    let (mut d, mut dg, mut ds) = (d0.clone(), vec![0.0; n], vec![0.0; n]);
+                    let t = then_tanh.then_some(&y[..]);
+                    layer_norm_backward_on(isa, &mut d, n, &gain, &x, &stats, t, Some((&mut dg, &mut ds)));
+                    out.extend([y.clone(), stats, d, dg, ds]);
+                }
                 out.into_iter().map(|v| v.iter().map(|f| f.to_bits()).collect::<Vec<u32>>()).collect::<Vec<_>>()
             };
             let portable = run(Isa::Portable);
             for &isa in &copies {
                 assert_eq!(run(isa), portable, "{isa:?} at {rows} x {n}");
             }
+        }
+    }
+
+    /// LayerNorm with `then_tanh` gives bit for bit what LayerNorm then [`tanh_into`] give, and
+    /// its backward what [`tanh_backward`] then the plain LayerNorm backward give.
+    #[test]
+    fn fused_layer_norm_tanh_gives_the_bits_of_the_two_kernels() {
+        use super::*;
+        for &(rows, n) in &[(13, 37), (256, 192), (3, 64)] {
+            let len = rows * n;
+            let (x, d0) = (data(len, 5), data(len, 6));
+            let (gain, shift) = (data(n, 7), data(n, 8));
+            let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<u32>>();
+            let (mut ln, mut t_two) = (vec![0.0; len], vec![0.0; len]);
+            let mut stats_two = vec![0.0; 2 * rows];
+            layer_norm(&x, &mut ln, n, &gain, &shift, &mut stats_two, false);
+            tanh_into(&ln, &mut t_two);
+            let (mut d_two, mut dg_two, mut ds_two) = (d0.clone(), vec![0.0; n], vec![0.0; n]);
+            tanh_backward(&t_two, &mut d_two);
+            layer_norm_backward(&mut d_two, n, &gain, &x, &stats_two, None, Some((&mut dg_two, &mut ds_two)));
+
+            let mut t = vec![0.0; len];
+            let mut stats = vec![0.0; 2 * rows];
+            layer_norm(&x, &mut t, n, &gain, &shift, &mut stats, true);
+            let (mut d, mut dg, mut ds) = (d0.clone(), vec![0.0; n], vec![0.0; n]);
+            layer_norm_backward(&mut d, n, &gain, &x, &stats, Some(&t), Some((&mut dg, &mut ds)));
+            assert_eq!(bits(&t), bits(&t_two));
+            assert_eq!(bits(&stats), bits(&stats_two));
+            assert_eq!(bits(&d), bits(&d_two));
+            assert_eq!(bits(&dg), bits(&dg_two));
+            assert_eq!(bits(&ds), bits(&ds_two));
+            assert!(t.iter().any(|v| *v != 0.0) && d.iter().any(|v| *v != 0.0));
         }
     }
 }
