@@ -111,56 +111,17 @@ impl<T: Real> Circulant<T> {
     }
 
     /// Spatial (rows x 8 F) -> Fourier blocks, concatenated: [x0 | x4 | xc1 | xc2 | xc3], each
-    /// block rows x (F or 2 F). One gemm (`(rows F) x 8` times `T^T`), then a reshuffle.
-    fn fourier(&self, x: &[T], rows: usize, f: usize, out: &mut Vec<T>, c: &mut Vec<T>) {
-        let mut tt = [T::ZERO; ORDER * ORDER];
-        for k in 0..ORDER {
-            for a in 0..ORDER {
-                tt[a * ORDER + k] = self.t[k][a];
-            }
-        }
-        ops::resize_for_overwrite(c, rows * f * ORDER);
-        gemm(rows * f, ORDER, ORDER, x, Trans::N, &tt, c, false);
-        ops::resize_for_overwrite(out, rows * 8 * f);
-        let (o0, o4) = out.split_at_mut(rows * f);
-        let (o4, oc) = o4.split_at_mut(rows * f);
-        for r in 0..rows {
-            for fld in 0..f {
-                let ck = &c[(r * f + fld) * ORDER..(r * f + fld + 1) * ORDER];
-                o0[r * f + fld] = ck[0];
-                o4[r * f + fld] = ck[1];
-                for j in 0..3 {
-                    let blk = &mut oc[rows * f * 2 * j..rows * f * 2 * (j + 1)];
-                    blk[r * 2 * f + fld] = ck[2 + 2 * j];
-                    blk[r * 2 * f + f + fld] = ck[3 + 2 * j];
-                }
-            }
-        }
+    /// block rows x (F or 2 F).
+    fn fourier(&self, x: &[T], rows: usize, f: usize, out: &mut Vec<T>) {
+        ops::resize_for_overwrite(out, rows * ORDER * f);
+        transform::forward(&self.t, x, rows, f, out);
     }
 
-    /// Fourier blocks -> spatial (rows x 8 F), added into `out`: a reshuffle, then one gemm
-    /// (`(rows F) x 8` times `T`).
-    fn add_spatial(&self, xh: &[T], rows: usize, f: usize, out: &mut [T], c: &mut Vec<T>) {
-        ops::resize_for_overwrite(c, rows * f * ORDER);
-        let (x0, x4) = xh.split_at(rows * f);
-        let (x4, xc) = x4.split_at(rows * f);
-        for r in 0..rows {
-            for fld in 0..f {
-                let ck = &mut c[(r * f + fld) * ORDER..(r * f + fld + 1) * ORDER];
-                ck[0] = x0[r * f + fld];
-                ck[1] = x4[r * f + fld];
-                for j in 0..3 {
-                    let blk = &xc[rows * f * 2 * j..rows * f * 2 * (j + 1)];
-                    ck[2 + 2 * j] = blk[r * 2 * f + fld];
-                    ck[3 + 2 * j] = blk[r * 2 * f + f + fld];
-                }
-            }
-        }
-        let mut t = [T::ZERO; ORDER * ORDER];
-        for (dst, src) in t.iter_mut().zip(self.t.iter().flatten()) {
-            *dst = *src;
-        }
-        gemm(rows * f, ORDER, ORDER, c, Trans::N, &t, out, true);
+    /// Fourier blocks -> spatial (rows x 8 F) into `out`, each field starting from its value in
+    /// `init` (a bias) or 0.
+    fn spatial(&self, xh: &[T], rows: usize, f: usize, init: Option<&[T]>, out: &mut Vec<T>) {
+        ops::resize_for_overwrite(out, rows * ORDER * f);
+        transform::inverse(&self.t, xh, rows, f, init, out);
     }
 
     /// Block offsets within a Fourier buffer of `f` fields.
@@ -169,20 +130,11 @@ impl<T: Real> Circulant<T> {
     }
 
     /// Forward: `out` (rows x 8 F_out) from `x` (rows x 8 F_in); keeps the input's Fourier
-    /// blocks in `xhat` for the backward pass (`yhat` and `spare` are reused buffers).
+    /// blocks in `xhat` for the backward pass (`yhat` is a reused buffer).
     #[allow(clippy::too_many_arguments)]
-    pub fn forward(
-        &self,
-        params: &[T],
-        x: &[T],
-        rows: usize,
-        out: &mut Vec<T>,
-        xhat: &mut Vec<T>,
-        yhat: &mut Vec<T>,
-        spare: &mut Vec<T>,
-    ) {
+    pub fn forward(&self, params: &[T], x: &[T], rows: usize, out: &mut Vec<T>, xhat: &mut Vec<T>, yhat: &mut Vec<T>) {
         let (fi, fo) = (self.f_in, self.f_out);
-        self.fourier(x, rows, fi, xhat, spare);
+        self.fourier(x, rows, fi, xhat);
         ops::resize_for_overwrite(yhat, rows * 8 * fo);
         let (oi, oo) = (Self::offsets(rows, fi), Self::offsets(rows, fo));
         for k in 0..5 {
@@ -198,17 +150,11 @@ impl<T: Real> Circulant<T> {
                 false,
             );
         }
-        ops::resize_for_overwrite(out, rows * ORDER * fo);
-        for row in out.chunks_exact_mut(ORDER * fo) {
-            for (f, field) in row.chunks_exact_mut(ORDER).enumerate() {
-                field.fill(params[self.b + f]);
-            }
-        }
-        self.add_spatial(yhat, rows, fo, out, spare);
+        self.spatial(yhat, rows, fo, Some(&params[self.b..self.b + fo]), out);
     }
 
     /// Backward from `dy` (rows x 8 F_out): parameter gradients into `grads` (when given), the
-    /// input gradient into `dx` (when given); `dyhat`, `gm` and `spare` are reused buffers.
+    /// input gradient into `dx` (when given); `dyhat` and `gm` are reused buffers.
     #[allow(clippy::too_many_arguments)]
     pub fn backward(
         &self,
@@ -219,11 +165,10 @@ impl<T: Real> Circulant<T> {
         dx: Option<&mut Vec<T>>,
         dyhat: &mut Vec<T>,
         gm: &mut Vec<T>,
-        spare: &mut Vec<T>,
     ) {
         let (fi, fo) = (self.f_in, self.f_out);
         // The inverse transform is T^T, so its backward is T.
-        self.fourier(dy, rows, fo, dyhat, spare);
+        self.fourier(dy, rows, fo, dyhat);
         let (oi, oo) = (Self::offsets(rows, fi), Self::offsets(rows, fo));
         if let Some(g) = grads {
             let n = fi * fo;
@@ -275,9 +220,7 @@ impl<T: Real> Circulant<T> {
                     false,
                 );
             }
-            dx.clear();
-            dx.resize(rows * ORDER * fi, T::ZERO);
-            self.add_spatial(gm, rows, fi, dx, spare);
+            self.spatial(gm, rows, fi, None, dx);
         }
     }
 
@@ -285,6 +228,396 @@ impl<T: Real> Circulant<T> {
         let mut c = Circulant::new(self.f_in, self.f_out, self.w, self.b);
         c.expand(params);
         c
+    }
+}
+
+/// The transforms of a batch of regular fields into and out of the Fourier blocks of
+/// [`Circulant`], written as one kernel each instead of an `8 x 8` matrix product and a reshuffle.
+///
+/// # Why a kernel of its own
+///
+/// As a matrix product (`(rows F) x 8` times `8 x 8`) the transform ran at 37 GFLOP/s (the
+/// product's narrowest shape), and the reshuffle into the blocks was scalar: together 19 % of an
+/// Equi-DSRL gradient step (`perf` and a per-shape tally of `examples/bench --only equi`). Here
+/// each row's fields are loaded sixteen at a time, transposed in registers (AVX-512 two-source
+/// permutes) so that one vector holds one component of sixteen fields, and each frequency is one
+/// chain of eight fused multiply-adds written straight into its block.
+///
+/// # Same bits as the matrix product
+///
+/// Every coefficient is the chain the product computes, `(((c0 + x_0 t_0) + x_1 t_1) + ...)`
+/// with fused multiply-adds from component (or frequency) 0 up, `c0` = 0 for the forward
+/// transform and the field's bias (or 0) for the inverse. Only where the values travel differs.
+/// The portable copy (also the `f64` path and CPUs without AVX-512) runs the same chains one
+/// coefficient at a time; a test compares the copies bit for bit.
+mod transform {
+    use super::ORDER;
+    use equigym_nn::{Isa, Real};
+
+    /// Where frequency row `k` of the transform of row `r` lives in a Fourier buffer of `f`
+    /// fields: `base + r * stride` (then `f` consecutive values, one per field).
+    #[derive(Clone, Copy, Debug)]
+    pub struct Blocks {
+        rows: usize,
+        f: usize,
+    }
+
+    impl Blocks {
+        pub fn new(rows: usize, f: usize) -> Self {
+            Self { rows, f }
+        }
+
+        /// rho0 (`rows x F`), rho4 (`rows x F`), then each 2-d irrep as `rows x [re (F) | im (F)]`.
+        #[inline(always)]
+        fn at(&self, k: usize, r: usize) -> usize {
+            let (rows, f) = (self.rows, self.f);
+            match k {
+                0 => r * f,
+                1 => rows * f + r * f,
+                _ => {
+                    let j = (k - 2) / 2;
+                    2 * rows * f + 2 * j * rows * f + r * 2 * f + ((k - 2) % 2) * f
+                }
+            }
+        }
+
+        pub fn len(&self) -> usize {
+            self.rows * self.f * ORDER
+        }
+    }
+
+    /// `out` (blocks of `f` fields) from `x` (`rows x 8 F`, field-major): coefficient `k` of
+    /// field `i` is `sum_a x[i, a] t[k][a]`.
+    pub fn forward<T: Real>(t: &[[T; ORDER]; ORDER], x: &[T], rows: usize, f: usize, out: &mut [T]) {
+        let blocks = Blocks::new(rows, f);
+        assert!(x.len() >= blocks.len() && out.len() >= blocks.len(), "transform: short buffers");
+        #[cfg(target_arch = "x86_64")]
+        if let (Some(t32), Some(x32), Some(o32)) = (as_f32(t.as_flattened()), as_f32(x), as_f32_mut(out)) {
+            match Isa::best() {
+                // SAFETY: the CPU has AVX-512 F; the lengths were checked above.
+                Isa::Avx512 => return unsafe { avx512::forward(t32, x32, blocks, o32) },
+                // SAFETY: the CPU has AVX2 and FMA.
+                Isa::Avx2 => return unsafe { forward_avx2(t, x, blocks, out) },
+                Isa::Portable => {}
+            }
+        }
+        forward_body(t, x, blocks, out)
+    }
+
+    /// `out` (`rows x 8 F`, field-major, overwritten) from the blocks `xh`: value `a` of field
+    /// `i` is `init_i + sum_k xh_k[i] t[k][a]`, with `init` one value per field (a bias) or 0.
+    pub fn inverse<T: Real>(
+        t: &[[T; ORDER]; ORDER],
+        xh: &[T],
+        rows: usize,
+        f: usize,
+        init: Option<&[T]>,
+        out: &mut [T],
+    ) {
+        let blocks = Blocks::new(rows, f);
+        assert!(xh.len() >= blocks.len() && out.len() >= blocks.len(), "transform: short buffers");
+        assert!(init.is_none_or(|v| v.len() >= f), "transform: short init");
+        #[cfg(target_arch = "x86_64")]
+        if let (Some(t32), Some(x32), Some(o32)) = (as_f32(t.as_flattened()), as_f32(xh), as_f32_mut(out)) {
+            let init32 = init.map(|v| as_f32(v).expect("init has the type of xh"));
+            match Isa::best() {
+                // SAFETY: the CPU has AVX-512 F; the lengths were checked above.
+                Isa::Avx512 => return unsafe { avx512::inverse(t32, x32, blocks, init32, o32) },
+                // SAFETY: the CPU has AVX2 and FMA.
+                Isa::Avx2 => return unsafe { inverse_avx2(t, xh, blocks, init, out) },
+                Isa::Portable => {}
+            }
+        }
+        inverse_body(t, xh, blocks, init, out)
+    }
+
+    fn as_f32<T: Real>(v: &[T]) -> Option<&[f32]> {
+        (std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>())
+            // SAFETY: T is f32.
+            .then(|| unsafe { std::slice::from_raw_parts(v.as_ptr() as *const f32, v.len()) })
+    }
+
+    fn as_f32_mut<T: Real>(v: &mut [T]) -> Option<&mut [f32]> {
+        (std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>())
+            // SAFETY: T is f32.
+            .then(|| unsafe { std::slice::from_raw_parts_mut(v.as_mut_ptr() as *mut f32, v.len()) })
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn forward_avx2<T: Real>(t: &[[T; ORDER]; ORDER], x: &[T], blocks: Blocks, out: &mut [T]) {
+        forward_body(t, x, blocks, out)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn inverse_avx2<T: Real>(
+        t: &[[T; ORDER]; ORDER],
+        xh: &[T],
+        blocks: Blocks,
+        init: Option<&[T]>,
+        out: &mut [T],
+    ) {
+        inverse_body(t, xh, blocks, init, out)
+    }
+
+    #[inline(always)]
+    fn forward_body<T: Real>(t: &[[T; ORDER]; ORDER], x: &[T], blocks: Blocks, out: &mut [T]) {
+        let f = blocks.f;
+        for r in 0..blocks.rows {
+            for i in 0..f {
+                let xs = &x[(r * f + i) * ORDER..(r * f + i + 1) * ORDER];
+                for (k, tk) in t.iter().enumerate() {
+                    let mut acc = T::ZERO;
+                    for (xa, ta) in xs.iter().zip(tk) {
+                        acc = xa.fma(*ta, acc);
+                    }
+                    out[blocks.at(k, r) + i] = acc;
+                }
+            }
+        }
+    }
+
+    #[inline(always)]
+    fn inverse_body<T: Real>(t: &[[T; ORDER]; ORDER], xh: &[T], blocks: Blocks, init: Option<&[T]>, out: &mut [T]) {
+        let f = blocks.f;
+        for r in 0..blocks.rows {
+            for i in 0..f {
+                let c0 = init.map_or(T::ZERO, |v| v[i]);
+                for a in 0..ORDER {
+                    let mut acc = c0;
+                    for (k, tk) in t.iter().enumerate() {
+                        acc = xh[blocks.at(k, r) + i].fma(tk[a], acc);
+                    }
+                    out[(r * f + i) * ORDER + a] = acc;
+                }
+            }
+        }
+    }
+
+    /// The AVX-512 copy: sixteen fields at a time (a masked block for the rest).
+    #[cfg(target_arch = "x86_64")]
+    mod avx512 {
+        use super::{Blocks, ORDER};
+        use std::arch::x86_64::*;
+
+        /// Fields per register block: a 512-bit vector holds one component of sixteen fields.
+        const LANES: usize = 16;
+
+        /// Two-source permute indices of the three transpose stages (field-major -> one vector
+        /// per component). Stage 1 (by component half `h`): lane `4 l + c` = field `l` (of 4),
+        /// component `4 h + c`. Stage 2 (by component pair `q`): lane `2 l + c` = field `l` (of
+        /// 8), component `2 q + c` of the half. Stage 3 (by component parity `c`): lane `l` =
+        /// field `l` (of 16).
+        const fn to_components(stage: usize, sel: usize) -> [i32; 16] {
+            let mut idx = [0i32; 16];
+            let mut lane = 0;
+            while lane < 16 {
+                idx[lane] = match stage {
+                    1 => {
+                        let (l, c) = (lane / 4, lane % 4);
+                        (l / 2) * 16 + (l % 2) * 8 + 4 * sel + c
+                    }
+                    2 => {
+                        let (l, c) = (lane / 2, lane % 2);
+                        (l / 4) * 16 + (l % 4) * 4 + 2 * sel + c
+                    }
+                    _ => (lane / 8) * 16 + (lane % 8) * 2 + sel,
+                } as i32;
+                lane += 1;
+            }
+            idx
+        }
+
+        /// The inverse stages (one vector per component -> field-major), in the order they run.
+        const fn to_fields(stage: usize, sel: usize) -> [i32; 16] {
+            let mut idx = [0i32; 16];
+            let mut lane = 0;
+            while lane < 16 {
+                idx[lane] = match stage {
+                    // undo stage 3: lane 2 l + c of field block `sel` (of 8 fields)
+                    3 => {
+                        let (l, c) = (lane / 2, lane % 2);
+                        c * 16 + 8 * sel + l
+                    }
+                    // undo stage 2: lane 4 l + c, fields 4 sel + l of the 8
+                    2 => {
+                        let (l, c) = (lane / 4, lane % 4);
+                        (c / 2) * 16 + (4 * sel + l) * 2 + c % 2
+                    }
+                    // undo stage 1: lane p = field (2 sel + p / 8), component p % 8
+                    _ => {
+                        let comp = lane % 8;
+                        (comp / 4) * 16 + (2 * sel + lane / 8) * 4 + comp % 4
+                    }
+                } as i32;
+                lane += 1;
+            }
+            idx
+        }
+
+        #[inline(always)]
+        unsafe fn idx(v: [i32; 16]) -> __m512i {
+            _mm512_loadu_si512(v.as_ptr() as *const _)
+        }
+
+        /// 16 fields x 8 components, field-major in `v[0..8]` (two fields each) -> `v[a]` =
+        /// component `a` of the 16 fields.
+        #[inline(always)]
+        unsafe fn fields_to_components(v: [__m512; 8]) -> [__m512; 8] {
+            let s1i = [idx(to_components(1, 0)), idx(to_components(1, 1))];
+            let s2i = [idx(to_components(2, 0)), idx(to_components(2, 1))];
+            let s3i = [idx(to_components(3, 0)), idx(to_components(3, 1))];
+            // s1[g][h]: fields 4 g .. 4 g + 4, components 4 h .. 4 h + 4
+            let s1: [[__m512; 2]; 4] = std::array::from_fn(|g| {
+                std::array::from_fn(|h| _mm512_permutex2var_ps(v[2 * g], s1i[h], v[2 * g + 1]))
+            });
+            // s2[g][h][q]: fields 8 g .. 8 g + 8, components 4 h + 2 q, + 1
+            let s2: [[[__m512; 2]; 2]; 2] = std::array::from_fn(|g| {
+                std::array::from_fn(|h| {
+                    std::array::from_fn(|q| _mm512_permutex2var_ps(s1[2 * g][h], s2i[q], s1[2 * g + 1][h]))
+                })
+            });
+            std::array::from_fn(|a| {
+                let (h, q, c) = (a / 4, (a / 2) % 2, a % 2);
+                _mm512_permutex2var_ps(s2[0][h][q], s3i[c], s2[1][h][q])
+            })
+        }
+
+        /// The inverse of [`fields_to_components`].
+        #[inline(always)]
+        unsafe fn components_to_fields(w: [__m512; 8]) -> [__m512; 8] {
+            let j3 = [idx(to_fields(3, 0)), idx(to_fields(3, 1))];
+            let j2 = [idx(to_fields(2, 0)), idx(to_fields(2, 1))];
+            let j1 = [idx(to_fields(1, 0)), idx(to_fields(1, 1))];
+            let s2: [[[__m512; 2]; 2]; 2] = std::array::from_fn(|g| {
+                std::array::from_fn(|h| {
+                    std::array::from_fn(|q| _mm512_permutex2var_ps(w[4 * h + 2 * q], j3[g], w[4 * h + 2 * q + 1]))
+                })
+            });
+            let s1: [[__m512; 2]; 4] = std::array::from_fn(|g4| {
+                let (g, t) = (g4 / 2, g4 % 2);
+                std::array::from_fn(|h| _mm512_permutex2var_ps(s2[g][h][0], j2[t], s2[g][h][1]))
+            });
+            std::array::from_fn(|i| {
+                let (g4, u) = (i / 2, i % 2);
+                _mm512_permutex2var_ps(s1[g4][0], j1[u], s1[g4][1])
+            })
+        }
+
+        /// Mask of the first `n` lanes (`n <= 16`).
+        #[inline(always)]
+        fn first(n: usize) -> __mmask16 {
+            ((1u32 << n) - 1) as __mmask16
+        }
+
+        #[target_feature(enable = "avx512f")]
+        pub unsafe fn forward(t: &[f32], x: &[f32], blocks: Blocks, out: &mut [f32]) {
+            let f = blocks.f;
+            let (xp, op) = (x.as_ptr(), out.as_mut_ptr());
+            for r in 0..blocks.rows {
+                let mut i0 = 0;
+                while i0 < f {
+                    let nf = LANES.min(f - i0);
+                    let base = xp.add((r * f + i0) * ORDER);
+                    let v: [__m512; 8] = std::array::from_fn(|b| {
+                        let valid = (nf * ORDER).saturating_sub(b * LANES).min(LANES);
+                        _mm512_maskz_loadu_ps(first(valid), base.add(b * LANES))
+                    });
+                    let comp = fields_to_components(v);
+                    for k in 0..ORDER {
+                        let mut acc = _mm512_setzero_ps();
+                        for (a, ca) in comp.iter().enumerate() {
+                            acc = _mm512_fmadd_ps(*ca, _mm512_set1_ps(t[k * ORDER + a]), acc);
+                        }
+                        _mm512_mask_storeu_ps(op.add(blocks.at(k, r) + i0), first(nf), acc);
+                    }
+                    i0 += nf;
+                }
+            }
+        }
+
+        #[target_feature(enable = "avx512f")]
+        pub unsafe fn inverse(t: &[f32], xh: &[f32], blocks: Blocks, init: Option<&[f32]>, out: &mut [f32]) {
+            let f = blocks.f;
+            let (xp, op) = (xh.as_ptr(), out.as_mut_ptr());
+            for r in 0..blocks.rows {
+                let mut i0 = 0;
+                while i0 < f {
+                    let nf = LANES.min(f - i0);
+                    let m = first(nf);
+                    let c0 = match init {
+                        Some(v) => _mm512_maskz_loadu_ps(m, v.as_ptr().add(i0)),
+                        None => _mm512_setzero_ps(),
+                    };
+                    let coef: [__m512; 8] =
+                        std::array::from_fn(|k| _mm512_maskz_loadu_ps(m, xp.add(blocks.at(k, r) + i0)));
+                    let vals: [__m512; 8] = std::array::from_fn(|a| {
+                        let mut acc = c0;
+                        for (k, ck) in coef.iter().enumerate() {
+                            acc = _mm512_fmadd_ps(*ck, _mm512_set1_ps(t[k * ORDER + a]), acc);
+                        }
+                        acc
+                    });
+                    let fields = components_to_fields(vals);
+                    let base = op.add((r * f + i0) * ORDER);
+                    for (b, v) in fields.iter().enumerate() {
+                        let valid = (nf * ORDER).saturating_sub(b * LANES).min(LANES);
+                        _mm512_mask_storeu_ps(base.add(b * LANES), first(valid), *v);
+                    }
+                    i0 += nf;
+                }
+            }
+        }
+    }
+
+    #[cfg(test)]
+    mod tests {
+        use super::*;
+
+        fn data(n: usize, salt: u64) -> Vec<f32> {
+            (0..n as u64)
+                .map(|i| {
+                    let h = (i.wrapping_add(salt << 32)).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 40;
+                    (h as f32 / (1u64 << 24) as f32) * 6.0 - 3.0
+                })
+                .collect()
+        }
+
+        /// The dispatched copy (AVX-512 where the CPU has it) gives the portable chains' bits,
+        /// for field counts below, at and above a register block, and the inverse undoes the
+        /// forward (the transform is orthonormal).
+        #[test]
+        fn every_copy_gives_the_portable_bits_and_the_inverse_undoes_the_forward() {
+            let t = super::super::dft_matrix().map(|row| row.map(|v| v as f32));
+            for &(rows, f) in &[(5, 24), (3, 1), (4, 16), (7, 17), (2, 40)] {
+                let n = rows * f * ORDER;
+                let (x, bias) = (data(n, 1), data(f, 2));
+                let blocks = Blocks::new(rows, f);
+                let (mut fast, mut slow) = (vec![0.0; n], vec![0.0; n]);
+                forward(&t, &x, rows, f, &mut fast);
+                forward_body(&t, &x, blocks, &mut slow);
+                assert_eq!(
+                    fast.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                    slow.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                    "forward {rows} x {f}"
+                );
+                for init in [None, Some(&bias[..])] {
+                    let (mut back, mut back_slow) = (vec![0.0; n], vec![0.0; n]);
+                    inverse(&t, &fast, rows, f, init, &mut back);
+                    inverse_body(&t, &fast, blocks, init, &mut back_slow);
+                    assert_eq!(
+                        back.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                        back_slow.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                        "inverse {rows} x {f}"
+                    );
+                    for (j, (b, v)) in back.iter().zip(&x).enumerate() {
+                        let c0 = init.map_or(0.0, |i| i[(j / ORDER) % f]);
+                        assert!((b - c0 - v).abs() < 1e-5, "round trip at {j}: {b} vs {v}");
+                    }
+                }
+            }
+        }
     }
 }
 

@@ -104,9 +104,8 @@ pub struct Tape<T> {
     aux: Vec<Vec<T>>,
     /// PoolHead: the argmax position of each field, per row.
     argmax: Vec<Vec<u32>>,
-    /// Reused buffers of the Fourier layers' forward pass.
+    /// Reused buffer of the Fourier layers' forward pass.
     yhat: Vec<T>,
-    spare: Vec<T>,
 }
 
 /// Buffers a backward pass reuses from call to call, so that a gradient step allocates nothing
@@ -119,7 +118,6 @@ pub struct Workspace<T> {
     lin: Vec<T>,
     dyhat: Vec<T>,
     gm: Vec<T>,
-    spare: Vec<T>,
 }
 
 impl<T: Real> Tape<T> {
@@ -389,7 +387,7 @@ impl<T: Real> Net<T> {
                     ops::tanh_into(input, out);
                 }
                 Layer::Circulant(c) => {
-                    c.forward(&self.params, input, rows, out, &mut tape.aux[l], &mut tape.yhat, &mut tape.spare);
+                    c.forward(&self.params, input, rows, out, &mut tape.aux[l], &mut tape.yhat);
                     width = c.f_out * ORDER;
                 }
                 Layer::Relu => {
@@ -434,7 +432,7 @@ impl<T: Real> Net<T> {
         ws: &'w mut Workspace<T>,
     ) -> Option<&'w [T]> {
         let rows = tape.rows;
-        let Workspace { d, next, lin: scratch, dyhat, gm, spare } = ws;
+        let Workspace { d, next, lin: scratch, dyhat, gm } = ws;
         d.clear();
         d.extend_from_slice(&dy[..rows * self.n_out]);
         for (l, layer) in self.layers.iter().enumerate().rev() {
@@ -508,16 +506,7 @@ impl<T: Real> Net<T> {
                 }
                 Layer::Tanh => ops::tanh_backward(output, d),
                 Layer::Circulant(c) => {
-                    c.backward(
-                        &tape.aux[l],
-                        d,
-                        rows,
-                        grads.as_deref_mut(),
-                        need_dx.then_some(&mut *next),
-                        dyhat,
-                        gm,
-                        spare,
-                    );
+                    c.backward(&tape.aux[l], d, rows, grads.as_deref_mut(), need_dx.then_some(&mut *next), dyhat, gm);
                     if need_dx {
                         std::mem::swap(d, next);
                     }

@@ -32,7 +32,7 @@ impl PlanarRotation {
     /// The k-th of n equal turns, with exact values at multiples of a quarter turn.
     fn fraction(k: usize, n: usize) -> Self {
         let k = k % n;
-        if (4 * k) % n == 0 {
+        if (4 * k).is_multiple_of(n) {
             let quarter = 4 * k / n;
             let (cos, sin) = [(1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0)][quarter];
             return Self { angle: std::f64::consts::FRAC_PI_2 * quarter as f64, cos, sin };

@@ -120,7 +120,7 @@ impl Representation {
     }
 
     fn check_batch(&self, data: &[f64]) -> Result<()> {
-        if self.dim == 0 || data.len() % self.dim != 0 {
+        if self.dim == 0 || !data.len().is_multiple_of(self.dim) {
             return Err(EnvError::WrongLength {
                 what: format!("batch of {}-d vectors (total length)", self.dim),
                 expected: (data.len() / self.dim.max(1)) * self.dim,
