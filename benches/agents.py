@@ -2,7 +2,7 @@
 thread; writes benches/results/agents.md.
 
     CARGO_BUILD_JOBS=1 cargo build --release -p equigym-agents --example bench
-    .venv/bin/python benches/agents.py [--quick]
+    .venv/bin/python benches/agents.py [--quick] [--repeats 3]
 
 - gradient steps/s of SAC (batch 256, Lift-sized observation and latent) for DSRL, Equi-DSRL and
   Approx-Equi-DSRL at the cpu preset (3 x 64 and parameter-matched equivariant nets) and at
@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import platform
+import re
 import subprocess
 import sys
 import time
@@ -63,15 +64,27 @@ def sb3_steps_per_s(method: str, width: int, steps: int) -> float:
     return steps / (time.process_time() - t)
 
 
-def rust_bench(quick: bool) -> dict[str, float]:
+def rust_kernels(quick: bool) -> dict[str, float]:
     exe = ROOT / "target" / "release" / "examples" / "bench"
-    out = subprocess.run([str(exe)] + (["--quick"] if quick else []), capture_output=True, text=True, check=True).stdout
+    args = [str(exe), "--kernels"] + (["--quick"] if quick else [])
+    out = subprocess.run(args, capture_output=True, text=True, check=True).stdout
     rows = {}
     for line in out.splitlines():
         if line.startswith("| ") and not line.startswith("| measure"):
             k, v = line.strip("| \n").rsplit("|", 1)
             rows[k.strip()] = float(v)
     return rows
+
+
+def rust_steps_per_s(method: str, width: int, steps: int) -> tuple[float, int]:
+    """Gradient steps/s of the Rust agent (`examples/bench --only`), and its regular fields."""
+    exe = ROOT / "target" / "release" / "examples" / "bench"
+    args = [str(exe), "--only", method, "--width", str(width), "--steps", str(steps)]
+    out = subprocess.run(args, capture_output=True, text=True, check=True).stdout
+    m = re.search(r"\((\d+) fields\): ([0-9.]+) gradient steps/s", out)
+    if m is None:
+        raise RuntimeError(f"unexpected output of {' '.join(args)}: {out!r}")
+    return float(m.group(2)), int(m.group(1))
 
 
 def ddim_chunks_per_s(batch: int, reps: int) -> tuple[float, float, float]:
@@ -106,35 +119,44 @@ def ddim_chunks_per_s(batch: int, reps: int) -> tuple[float, float, float]:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--quick", action="store_true")
+    p.add_argument("--repeats", type=int, default=3, help="alternating Rust / SB3 measurements per cell")
     p.add_argument("--out", default=str(ROOT / "benches" / "results" / "agents.md"))
     a = p.parse_args()
-    sb3_steps = 10 if a.quick else 60
+    repeats = 1 if a.quick else a.repeats
     load_before = Path("/proc/loadavg").read_text().split()[:3]
-    r = rust_bench(a.quick)
+    r = rust_kernels(a.quick)
     lines = [
         "# Rust steering agents vs SB3, one thread",
         "",
         f"`python benches/agents.py{' --quick' if a.quick else ''}` on {cpu_name()} ({time.strftime('%Y-%m-%d')}); "
-        "CPU seconds of one thread, batch 256, Lift-sized inputs, random replay data.",
+        "CPU seconds of one thread, batch 256, Lift-sized inputs, random replay data. Each cell is the best of "
+        f"{repeats} measurements, Rust and SB3 alternating (the range in brackets): on a shared machine the same "
+        "binary's rate moves by up to 1.3x from minute to minute, and the best run is the one least disturbed.",
         "",
         "| gradient steps/s | Rust | SB3 | Rust / SB3 |",
         "|---|---:|---:|---:|",
     ]
     for width, label in ((64, "cpu preset (3 x 64)"), (256, "3 x 256")):
+        # steps per measurement: about 2-5 s each at the rates of an AVX-512 Xeon core
+        rust_n = (50 if a.quick else 300) if width == 64 else (10 if a.quick else 60)
+        sb3_n = (10 if a.quick else 60) if width == 64 else (5 if a.quick else 20)
         for method in ("dsrl", "equi", "approx"):
-            key = next(
-                (k for k in r if k.startswith(f"{method} ") and (("3x64" in k) if width == 64 else ("3x256" in k))),
-                None,
-            )
-            rust = r.get(key, float("nan")) if key else float("nan")
-            try:
-                sb3 = sb3_steps_per_s(method, width, sb3_steps)
-            except ImportError as e:  # escnn missing: the Rust column alone
-                print(f"SB3 {method}: {e}", file=sys.stderr)
-                sb3 = float("nan")
-            lines.append(
-                f"| {method} {label}{key.split(',', 1)[1].split(':')[0] if key and ',' in key else ''} | {rust:.1f} | {sb3:.1f} | {rust / sb3:.1f}x |"
-            )
+            rust, sb3, fields = [], [], 0
+            for _ in range(repeats):
+                sps, fields = rust_steps_per_s(method, width, rust_n)
+                rust.append(sps)
+                try:
+                    sb3.append(sb3_steps_per_s(method, width, sb3_n))
+                except ImportError as e:  # escnn missing: the Rust column alone
+                    print(f"SB3 {method}: {e}", file=sys.stderr)
+                    sb3.append(float("nan"))
+            f = f" {fields} fields" if fields else ""
+
+            def cell(v: list[float]) -> str:
+                return f"{max(v):.1f}" + (f" ({min(v):.1f}-{max(v):.1f})" if len(v) > 1 else "")
+
+            lines.append(f"| {method} {label}{f} | {cell(rust)} | {cell(sb3)} | {max(rust) / max(sb3):.1f}x |")
+            print(lines[-1], flush=True)
     lines += ["", "| kernel | GFLOP/s |", "|---|---:|"]
     peak = r.get("f32 FMA peak, one core (GFLOP/s)", float("nan"))
     for k, v in r.items():

@@ -1,5 +1,7 @@
 //! Speed of the agents' kernels and gradient steps (one thread):
-//! `cargo run --release -p equigym-agents --example bench [-- --quick]`.
+//! `cargo run --release -p equigym-agents --example bench [-- --quick] [--kernels]`
+//! (`--kernels`: the peak and gemm rows only; `--only METHOD [--width W] [--steps N]`: one
+//! method's gradient steps/s).
 //!
 //! Prints, as Markdown rows: the core's measured f32 FMA peak, the gemm kernel's GFLOP/s on the
 //! layer shapes of the cpu preset and of 3 x 256 at batch 256, and SAC gradient steps per
@@ -54,10 +56,36 @@ unsafe fn fma_peak_loop(iters: usize) -> f32 {
     acc.iter().flatten().sum()
 }
 
-/// GFLOP/s of dependent-free FMAs on one core (2 flops each).
+/// The same chains in 16-lane (AVX-512) registers (intrinsics: LLVM kept a 16-wide array
+/// version of the loop above in memory).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn fma_peak_loop_512(iters: usize) -> f32 {
+    use std::arch::x86_64::*;
+    let mut acc = [_mm512_set1_ps(1.0); CHAINS];
+    let (m, a) = (_mm512_set1_ps(0.999_999), _mm512_set1_ps(1e-7));
+    for _ in 0..iters {
+        for c in acc.iter_mut() {
+            *c = _mm512_fmadd_ps(*c, m, a);
+        }
+    }
+    acc.iter().map(|v| _mm512_reduce_add_ps(*v)).sum()
+}
+
+/// GFLOP/s of dependent-free FMAs on one core (2 flops each), in the widest registers the
+/// kernels use on this CPU (AVX-512 where [`equigym_agents::nn::has_avx512`], else AVX2): the
+/// peak the gemm copy that runs here can reach.
 fn fma_peak() -> f64 {
     #[cfg(target_arch = "x86_64")]
     {
+        if equigym_agents::nn::has_avx512() {
+            let iters = 20_000_000;
+            let t = Clock::start();
+            let s = unsafe { fma_peak_loop_512(iters) };
+            let dt = t.seconds();
+            std::hint::black_box(s);
+            return (iters * CHAINS * 16 * 2) as f64 / dt / 1e9;
+        }
         if equigym_agents::nn::has_fast_fma() {
             let iters = 20_000_000;
             let t = Clock::start();
@@ -114,12 +142,15 @@ fn grad_steps_per_s(method: Method, arch: Arch, steps: usize) -> (f64, usize) {
 
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick");
-    // `--only dsrl|equi|approx`: gradient steps of one method only (for profiling).
-    let only: Option<String> = std::env::args().skip_while(|a| a != "--only").nth(1);
-    if let Some(m) = only {
+    // `--only dsrl|equi|approx [--width W] [--steps N]`: gradient steps of one method only (for
+    // profiling, and for benches/agents.py, which alternates it with the SB3 measurement).
+    let arg = |name: &str| std::env::args().skip_while(|a| a != name).nth(1);
+    if let Some(m) = arg("--only") {
         let method = Method::parse(&m).expect("--only dsrl|equi|approx");
-        let (sps, _) = grad_steps_per_s(method, Arch { width: 64, layers: 3 }, if quick { 50 } else { 300 });
-        println!("{m} cpu preset: {sps:.1} gradient steps/s");
+        let width = arg("--width").map_or(64, |w| w.parse().expect("--width N"));
+        let steps = arg("--steps").map_or(if quick { 50 } else { 300 }, |w| w.parse().expect("--steps N"));
+        let (sps, fields) = grad_steps_per_s(method, Arch { width, layers: 3 }, steps);
+        println!("{m} 3x{width} ({fields} fields): {sps:.1} gradient steps/s");
         return;
     }
     let reps = if quick { 20 } else { 200 };
@@ -132,6 +163,9 @@ fn main() {
         (192, 192, 256, Trans::T, "X^T dY 192x256 . 256x192 (weight gradient)"),
     ] {
         println!("| gemm {what} (GFLOP/s) | {:.1} |", gemm_gflops(m, n, k, ta, reps));
+    }
+    if std::env::args().any(|a| a == "--kernels") {
+        return;
     }
     let steps = if quick { 20 } else { 200 };
     for (arch, name) in
