@@ -42,10 +42,16 @@
 //!   `#[inline(always)]` body per kernel in a portable, an AVX2 and an AVX-512 copy, chosen by
 //!   [`Isa::best`]; their arithmetic has no multiply-add to fuse, so the copies differ only in
 //!   vector width (tested bit for bit against the portable copy). On the AVX-512 Xeon, Tanh's
-//!   share of a DSRL gradient step fell from 14 % to 10 % of `perf` samples; the LayerNorm
-//!   statistics stay scalar (each row's sum runs in index order, and rows are strided in
-//!   memory), and the whole step moved within the noise of a loaded machine (193.8 / 186.0
-//!   before, 195.1 / 199.5 after, alternating runs of `examples/bench --only dsrl`).
+//!   share of a DSRL gradient step fell from 14 % to 10 % of `perf` samples. The LayerNorm
+//!   statistics (each row's sums in index order, rows strided in memory) run sixteen rows per
+//!   instruction on AVX-512 through an in-register transpose (`ops`' `rows16`), the same
+//!   additions in the same order; elsewhere eight rows side by side.
+//! - **Memory, not arithmetic, bounds the pointwise passes** at batch 256: LayerNorm and the
+//!   Tanh after it run as one kernel that writes only the Tanh's output and keeps each row's
+//!   mean and `1/std` ([`ops::layer_norm`]). With that, the transposed statistics, the Fourier
+//!   layers' own transform kernel and a branch-free argmax in the critic head, Equi-DSRL's
+//!   gradient steps/s on the AVX-512 Xeon went from 74-78 to 97-105 (best of 4 alternating runs
+//!   of `examples/bench --only equi`, same bits: the golden runs did not change).
 //!
 //! Transcendentals (`tanh`, `exp`, `ln`) come from the pinned `libm` crate, not the platform's
 //! C library (the f32 `tanh` of the layers is the crate's own [`tanh_f32`]); `sqrt` is exact
