@@ -28,7 +28,7 @@
 
 use std::sync::Arc;
 
-use equigym_nn::Real;
+use equigym_nn::{ops, Real};
 use equigym_wrappers::TaskSymmetry;
 use serde::{Deserialize, Serialize};
 
@@ -297,6 +297,39 @@ impl<T: Real> Models<T> {
 }
 
 impl Squash {
+    /// [`Squash::forward`] of `rows` rows at once (`u` and `a`: rows x `dim`), each row's
+    /// log |det da/du| into `logdet`. For the elementwise tanh the tanh and the logarithms run as
+    /// passes over the whole batch ([`ops::tanh_into`], [`ops::ln_into`]: vectorised, the same
+    /// bits as one element at a time) and each row's sum keeps `forward`'s order, so the results
+    /// are `forward`'s bit for bit; one `logf` per coordinate, scalar, was half the time of
+    /// sampling actions in a DSRL gradient step. `scratch` is a reused buffer.
+    pub fn forward_rows<T: Real>(&self, u: &[T], a: &mut [T], dim: usize, logdet: &mut [T], scratch: &mut Vec<T>) {
+        let n = logdet.len() * dim;
+        match self {
+            Squash::Tanh => {
+                let eps = T::from_f64(TANH_EPS);
+                ops::tanh_into(&u[..n], &mut a[..n]);
+                scratch.clear();
+                scratch.extend(a[..n].iter().map(|ai| (T::ONE - *ai * *ai) + eps));
+                scratch.resize(2 * n, T::ZERO);
+                let (args, logs) = scratch.split_at_mut(n);
+                ops::ln_into(args, logs);
+                for (ld, row) in logdet.iter_mut().zip(logs.chunks_exact(dim.max(1))) {
+                    let mut sum = T::ZERO;
+                    for v in row {
+                        sum += *v;
+                    }
+                    *ld = sum;
+                }
+            }
+            Squash::Radial { .. } => {
+                for (r, ld) in logdet.iter_mut().enumerate() {
+                    *ld = self.forward(&u[r * dim..(r + 1) * dim], &mut a[r * dim..(r + 1) * dim]);
+                }
+            }
+        }
+    }
+
     /// `a = squash(u)` for one row; returns log |det da/du|.
     pub fn forward<T: Real>(&self, u: &[T], a: &mut [T]) -> T {
         let mut logdet = T::ZERO;

@@ -41,6 +41,9 @@ pub struct ActorSample<T> {
     pub a: Vec<T>,
     pub std: Vec<T>,
     pub logp: Vec<T>,
+    /// Each row's squash log-determinant, and a buffer for computing it.
+    logdet: Vec<T>,
+    scratch: Vec<T>,
 }
 
 /// Buffers the SAC losses reuse from call to call, so that a gradient step allocates nothing
@@ -94,8 +97,12 @@ impl PolicyHead {
                 s.u[r * d + i] = std * e + o[i];
                 lp += -(half * e * e) - ls - half_log_2pi;
             }
-            let logdet = self.squash.forward(&s.u[r * d..(r + 1) * d], &mut s.a[r * d..(r + 1) * d]);
-            s.logp[r] = lp - logdet;
+            s.logp[r] = lp;
+        }
+        s.logdet.resize(rows, T::ZERO);
+        self.squash.forward_rows(&s.u, &mut s.a, d, &mut s.logdet, &mut s.scratch);
+        for (lp, ld) in s.logp.iter_mut().zip(&s.logdet) {
+            *lp = *lp - *ld;
         }
     }
 

@@ -68,6 +68,7 @@
 
 pub mod adam;
 pub mod gemm;
+pub mod logs;
 pub mod ops;
 
 pub use adam::{Adam, AdamConfig};
@@ -103,6 +104,12 @@ pub trait Real:
     fn tanh(self) -> Self;
     fn exp(self) -> Self;
     fn ln(self) -> Self;
+    /// [`Real::ln`] for a positive, normal, finite `self` (bit for bit), written without
+    /// branches so that a loop of it vectorises; other inputs give garbage ([`ops::ln_into`]
+    /// fixes them up).
+    fn ln_positive_normal(self) -> Self;
+    /// Whether [`Real::ln_positive_normal`] is exact for `self`.
+    fn is_positive_normal(self) -> bool;
     fn ln_1p(self) -> Self;
     fn sqrt(self) -> Self;
     fn abs(self) -> Self;
@@ -112,7 +119,7 @@ pub trait Real:
 }
 
 macro_rules! real_impl {
-    ($t:ty, $tanh:expr, $exp:expr, $ln:expr, $ln_1p:expr) => {
+    ($t:ty, $tanh:expr, $exp:expr, $ln:expr, $ln_pn:expr, $ln_1p:expr) => {
         impl Real for $t {
             const ZERO: Self = 0.0;
             const ONE: Self = 1.0;
@@ -139,6 +146,14 @@ macro_rules! real_impl {
             #[inline(always)]
             fn ln(self) -> Self {
                 $ln(self)
+            }
+            #[inline(always)]
+            fn ln_positive_normal(self) -> Self {
+                $ln_pn(self)
+            }
+            #[inline(always)]
+            fn is_positive_normal(self) -> bool {
+                self.is_normal() && self > 0.0 && self.is_finite()
             }
             #[inline(always)]
             fn ln_1p(self) -> Self {
@@ -176,8 +191,8 @@ macro_rules! real_impl {
     };
 }
 // exp, ln and ln_1p from the `libm` crate, not the system C library (see clippy.toml).
-real_impl!(f32, tanh_f32, libm::expf, libm::logf, libm::log1pf);
-real_impl!(f64, libm::tanh, libm::exp, libm::log, libm::log1p);
+real_impl!(f32, tanh_f32, libm::expf, libm::logf, logs::logf_positive_normal, libm::log1pf);
+real_impl!(f64, libm::tanh, libm::exp, libm::log, logs::log_positive_normal, libm::log1p);
 
 /// Below this |x|, tanh uses its odd Taylor series to x^13 (truncation < 1e-9 there).
 const TANH_SERIES_BELOW: f32 = 0.4;

@@ -122,6 +122,25 @@ fn tanh_body<T: Real>(x: &[T], y: &mut [T]) {
 }
 
 kernel_copies! {
+    /// `y = ln(x)`, bit for bit [`Real::ln`] (`libm`): the branch-free main path
+    /// ([`crate::logs`]) over the whole slice, vectorised, then `libm` for any input that is not
+    /// positive, normal and finite.
+    pub fn ln_into / ln_into_on(x: &[T], y: &mut [T]) => ln_body;
+}
+
+#[inline(always)]
+fn ln_body<T: Real>(x: &[T], y: &mut [T]) {
+    for (o, v) in y.iter_mut().zip(x) {
+        *o = v.ln_positive_normal();
+    }
+    for (o, v) in y.iter_mut().zip(x) {
+        if !v.is_positive_normal() {
+            *o = v.ln();
+        }
+    }
+}
+
+kernel_copies! {
     /// `dy *= 1 - y^2` (backward through tanh, from its output).
     pub fn tanh_backward / tanh_backward_on(y: &[T], dy: &mut [T]) => tanh_backward_body;
 }
@@ -708,6 +727,10 @@ mod tests {
             let run = |isa: Isa| {
                 let mut out: Vec<Vec<f32>> = Vec::new();
                 let mut y = vec![0.0; len];
+                // positive arguments (the squash's) and the rest (zero, negative: libm's path)
+                let args: Vec<f32> = x.iter().map(|v| if v.to_bits() % 5 == 0 { *v } else { v.abs() + 1e-6 }).collect();
+                ln_into_on(isa, &args, &mut y);
+                out.push(y.clone());
                 tanh_into_on(isa, &x, &mut y);
                 let mut d = d0.clone();
                 tanh_backward_on(isa, &y, &mut d);
