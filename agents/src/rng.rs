@@ -15,6 +15,8 @@
 //! | [`Stream::Eval`] | the stochastic actor's noise in evaluation episode `index` |
 //! | [`Stream::Diagnostics`] | replay sample and actor noise of the learner diagnostics at evaluation `index` |
 
+use equigym_envs::rng::{box_muller, box_muller_uniforms};
+use equigym_nn::{ops, Real};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -59,6 +61,24 @@ impl Rng {
     /// Standard normal ([`equigym_envs::rng::standard_normal`]: the same on every platform).
     pub fn normal(&mut self) -> f64 {
         equigym_envs::rng::standard_normal(&mut self.0)
+    }
+
+    /// Fill `out` with standard normals: the draws of [`Rng::normal`] one after another, bit
+    /// for bit, with the logarithms of each block of draws taken in one vectorised pass
+    /// ([`ops::ln_into`]; scalar `libm::log` was a fifth of a DSRL gradient step's sampling).
+    pub fn fill_normal<T: Real>(&mut self, out: &mut [T]) {
+        const BLOCK: usize = 256;
+        let (mut u1, mut u2, mut ln_u1) = ([0.0f64; BLOCK], [0.0f64; BLOCK], [0.0f64; BLOCK]);
+        for chunk in out.chunks_mut(BLOCK) {
+            let n = chunk.len();
+            for (a, b) in u1[..n].iter_mut().zip(&mut u2[..n]) {
+                (*a, *b) = box_muller_uniforms(&mut self.0);
+            }
+            ops::ln_into(&u1[..n], &mut ln_u1[..n]);
+            for ((o, l), b) in chunk.iter_mut().zip(&ln_u1).zip(&u2) {
+                *o = T::from_f64(box_muller(*l, *b));
+            }
+        }
     }
 
     /// Uniform index in 0..n (n > 0).

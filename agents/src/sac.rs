@@ -64,9 +64,7 @@ pub struct Buffers<T> {
 
 /// Fill `out` with standard normal draws (f64 Box-Muller, rounded).
 pub fn normals<T: Real>(rng: &mut Rng, out: &mut [T]) {
-    for v in out {
-        *v = T::from_f64(rng.normal());
-    }
+    rng.fill_normal(out);
 }
 
 impl PolicyHead {
