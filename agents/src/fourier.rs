@@ -252,7 +252,7 @@ impl<T: Real> Circulant<T> {
 /// coefficient at a time; a test compares the copies bit for bit.
 mod transform {
     use super::ORDER;
-    use equigym_nn::{Isa, Real};
+    use equigym_nn::{as_f32s, as_f32s_mut, Isa, Real};
 
     /// Where frequency row `k` of the transform of row `r` lives in a Fourier buffer of `f`
     /// fields: `base + r * stride` (then `f` consecutive values, one per field).
@@ -292,7 +292,7 @@ mod transform {
         let blocks = Blocks::new(rows, f);
         assert!(x.len() >= blocks.len() && out.len() >= blocks.len(), "transform: short buffers");
         #[cfg(target_arch = "x86_64")]
-        if let (Some(t32), Some(x32), Some(o32)) = (as_f32(t.as_flattened()), as_f32(x), as_f32_mut(out)) {
+        if let (Some(t32), Some(x32), Some(o32)) = (as_f32s(t.as_flattened()), as_f32s(x), as_f32s_mut(out)) {
             match Isa::best() {
                 // SAFETY: the CPU has AVX-512 F; the lengths were checked above.
                 Isa::Avx512 => return unsafe { avx512::forward(t32, x32, blocks, o32) },
@@ -318,8 +318,8 @@ mod transform {
         assert!(xh.len() >= blocks.len() && out.len() >= blocks.len(), "transform: short buffers");
         assert!(init.is_none_or(|v| v.len() >= f), "transform: short init");
         #[cfg(target_arch = "x86_64")]
-        if let (Some(t32), Some(x32), Some(o32)) = (as_f32(t.as_flattened()), as_f32(xh), as_f32_mut(out)) {
-            let init32 = init.map(|v| as_f32(v).expect("init has the type of xh"));
+        if let (Some(t32), Some(x32), Some(o32)) = (as_f32s(t.as_flattened()), as_f32s(xh), as_f32s_mut(out)) {
+            let init32 = init.map(|v| as_f32s(v).expect("init has the type of xh"));
             match Isa::best() {
                 // SAFETY: the CPU has AVX-512 F; the lengths were checked above.
                 Isa::Avx512 => return unsafe { avx512::inverse(t32, x32, blocks, init32, o32) },
@@ -329,18 +329,6 @@ mod transform {
             }
         }
         inverse_body(t, xh, blocks, init, out)
-    }
-
-    fn as_f32<T: Real>(v: &[T]) -> Option<&[f32]> {
-        (std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>())
-            // SAFETY: T is f32.
-            .then(|| unsafe { std::slice::from_raw_parts(v.as_ptr() as *const f32, v.len()) })
-    }
-
-    fn as_f32_mut<T: Real>(v: &mut [T]) -> Option<&mut [f32]> {
-        (std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>())
-            // SAFETY: T is f32.
-            .then(|| unsafe { std::slice::from_raw_parts_mut(v.as_mut_ptr() as *mut f32, v.len()) })
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -575,14 +563,7 @@ mod transform {
     mod tests {
         use super::*;
 
-        fn data(n: usize, salt: u64) -> Vec<f32> {
-            (0..n as u64)
-                .map(|i| {
-                    let h = (i.wrapping_add(salt << 32)).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 40;
-                    (h as f32 / (1u64 << 24) as f32) * 6.0 - 3.0
-                })
-                .collect()
-        }
+        use equigym_nn::hashed_values as data;
 
         /// The dispatched copy (AVX-512 where the CPU has it) gives the portable chains' bits,
         /// for field counts below, at and above a register block, and the inverse undoes the

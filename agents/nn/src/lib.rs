@@ -242,6 +242,33 @@ pub fn tanh_f32(x: f32) -> f32 {
     }
 }
 
+/// `v` as `f32`s when `T` is `f32`: the kernels with a hand-written AVX-512 copy (f32 only)
+/// take it through this.
+pub fn as_f32s<T: Real>(v: &[T]) -> Option<&[f32]> {
+    (std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>())
+        // SAFETY: T is f32.
+        .then(|| unsafe { std::slice::from_raw_parts(v.as_ptr() as *const f32, v.len()) })
+}
+
+/// [`as_f32s`] for a mutable slice.
+pub fn as_f32s_mut<T: Real>(v: &mut [T]) -> Option<&mut [f32]> {
+    (std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>())
+        // SAFETY: T is f32.
+        .then(|| unsafe { std::slice::from_raw_parts_mut(v.as_mut_ptr() as *mut f32, v.len()) })
+}
+
+/// Test data for the kernels' bit-for-bit tests (here and in the agents): `n` values in
+/// [-3, 3) from a fixed integer hash of `(salt, index)`, no random stream involved.
+#[doc(hidden)]
+pub fn hashed_values(n: usize, salt: u64) -> Vec<f32> {
+    (0..n as u64)
+        .map(|i| {
+            let h = (i.wrapping_add(salt << 32)).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 40;
+            (h as f32 / (1u64 << 24) as f32) * 6.0 - 3.0
+        })
+        .collect()
+}
+
 /// Whether this machine runs the AVX-512 copy of the matrix kernel (wider register blocks; the
 /// same bits as the other copies).
 pub fn has_avx512() -> bool {

@@ -3,7 +3,7 @@
 //! Every reduction runs in index order on one thread (LayerNorm statistics over a row; bias,
 //! gain and shift gradients over the rows of a batch), so results do not depend on threads.
 
-use crate::{Isa, Real};
+use crate::{as_f32s, as_f32s_mut, Isa, Real};
 
 /// Defines a kernel as a dispatcher over compiled copies of one `#[inline(always)]` body:
 /// `$name` runs the widest copy this CPU has ([`Isa::best`]), `$on` the copy `isa` (for the
@@ -203,7 +203,7 @@ pub fn layer_norm_on<T: Real>(
     #[cfg(target_arch = "x86_64")]
     if isa == Isa::Avx512 && crate::has_avx512() {
         if let (Some(x32), Some(y32), Some(g32), Some(s32), Some(m32), Some(r32)) =
-            (f32s(x), f32s_mut(y), f32s(gain), f32s(shift), f32s_mut(mean), f32s_mut(rstd))
+            (as_f32s(x), as_f32s_mut(y), as_f32s(gain), as_f32s(shift), as_f32s_mut(mean), as_f32s_mut(rstd))
         {
             // SAFETY: the CPU has AVX-512 F and VL (checked above).
             done = unsafe { rows16::layer_norm(x32, y32, n, g32, s32, m32, r32, rows, then_tanh) };
@@ -350,11 +350,13 @@ pub fn layer_norm_backward_on<T: Real>(
     let mut done = 0;
     #[cfg(target_arch = "x86_64")]
     if isa == Isa::Avx512 && crate::has_avx512() {
-        let t32 = tanh_out.map(f32s);
+        let t32 = tanh_out.map(as_f32s);
         if let (Some(d32), Some(g32), Some(x32), Some(m32), Some(r32), None | Some(Some(_))) =
-            (f32s_mut(dy), f32s(gain), f32s(x), f32s(mean), f32s(rstd), t32)
+            (as_f32s_mut(dy), as_f32s(gain), as_f32s(x), as_f32s(mean), as_f32s(rstd), t32)
         {
-            let grads32 = grads.as_mut().map(|(dg, ds)| (f32s_mut(dg).unwrap(), f32s_mut(ds).unwrap()));
+            let grads32 = grads
+                .as_mut()
+                .map(|(dg, ds)| (as_f32s_mut(dg).expect("T is f32 here"), as_f32s_mut(ds).expect("T is f32 here")));
             // SAFETY: the CPU has AVX-512 F and VL (checked above).
             done = unsafe { rows16::layer_norm_backward(d32, n, g32, x32, m32, r32, t32.flatten(), grads32, rows) };
         }
@@ -499,18 +501,6 @@ fn backward_row_out<T: Real>(dy: &mut [T], xhat: &[T], gain: &[T], sum_d: T, sum
         let d = *v * *g;
         *v = (d - md - *h * mdx) * r;
     }
-}
-
-fn f32s<T: Real>(v: &[T]) -> Option<&[f32]> {
-    (std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>())
-        // SAFETY: T is f32.
-        .then(|| unsafe { std::slice::from_raw_parts(v.as_ptr() as *const f32, v.len()) })
-}
-
-fn f32s_mut<T: Real>(v: &mut [T]) -> Option<&mut [f32]> {
-    (std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>())
-        // SAFETY: T is f32.
-        .then(|| unsafe { std::slice::from_raw_parts_mut(v.as_mut_ptr() as *mut f32, v.len()) })
 }
 
 /// LayerNorm's row statistics sixteen rows at a time on AVX-512 (f32).
@@ -702,15 +692,7 @@ mod tests {
         assert_eq!(crate::tanh_f32(-30.0), -1.0);
     }
 
-    /// Values in [-3, 3) from a fixed integer hash (no RNG dependency).
-    fn data(n: usize, salt: u64) -> Vec<f32> {
-        (0..n as u64)
-            .map(|i| {
-                let h = (i.wrapping_add(salt << 32)).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 40;
-                (h as f32 / (1u64 << 24) as f32) * 6.0 - 3.0
-            })
-            .collect()
-    }
+    use crate::hashed_values as data;
 
     /// Every compiled copy of every pointwise and LayerNorm kernel this machine runs gives the
     /// portable copy's bits, on row widths that exercise full vectors and remainders and row
