@@ -49,9 +49,11 @@
 //! - **Memory, not arithmetic, bounds the pointwise passes** at batch 256: LayerNorm and the
 //!   Tanh after it run as one kernel that writes only the Tanh's output and keeps each row's
 //!   mean and `1/std` ([`ops::layer_norm`]). With that, the transposed statistics, the Fourier
-//!   layers' own transform kernel and a branch-free argmax in the critic head, Equi-DSRL's
-//!   gradient steps/s on the AVX-512 Xeon went from 74-78 to 97-105 (best of 4 alternating runs
-//!   of `examples/bench --only equi`, same bits: the golden runs did not change).
+//!   layers' own transform kernels and a branch-free argmax in the critic head, Equi-DSRL's
+//!   gradient steps/s on the AVX-512 Xeon went from 58-78 to 91-105 (best-of-4 alternating
+//!   runs of `examples/bench --only equi` against the previous build, on a shared machine),
+//!   and with the AVX-512 copies switched off from 50.5 to 65.7; same bits (the golden runs did
+//!   not change).
 //!
 //! Transcendentals (`tanh`, `exp`, `ln`) come from the pinned `libm` crate, not the platform's
 //! C library (the f32 `tanh` of the layers is the crate's own [`tanh_f32`]); `sqrt` is exact
