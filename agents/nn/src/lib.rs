@@ -50,10 +50,10 @@
 //!   Tanh after it run as one kernel that writes only the Tanh's output and keeps each row's
 //!   mean and `1/std` ([`ops::layer_norm`]). With that, the transposed statistics, the Fourier
 //!   layers' own transform kernels and a branch-free argmax in the critic head, Equi-DSRL's
-//!   gradient steps/s on the AVX-512 Xeon went from 58-78 to 91-105 (best-of-4 alternating
-//!   runs of `examples/bench --only equi` against the previous build, on a shared machine),
-//!   and with the AVX-512 copies switched off from 50.5 to 65.7; same bits (the golden runs did
-//!   not change).
+//!   gradient steps/s on the AVX-512 Xeon went from 67.4 to 108.7 and DSRL's from 216.1 to
+//!   310.0 (best of 5 alternating runs of `examples/bench --only` against the previous build),
+//!   and with the AVX-512 copies switched off Equi-DSRL's from 50.5 to 65.7; same bits (the
+//!   golden runs did not change).
 //!
 //! Transcendentals (`tanh`, `exp`, `ln`) come from the pinned `libm` crate, not the platform's
 //! C library (the f32 `tanh` of the layers is the crate's own [`tanh_f32`]); `sqrt` is exact
