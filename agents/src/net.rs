@@ -108,8 +108,9 @@ pub struct Tape<T> {
     yhat: Vec<T>,
 }
 
-/// Buffers a backward pass reuses from call to call, so that a gradient step allocates nothing
-/// once warm. Fresh buffers each pass cost page faults: before they were kept, 23 % of a DSRL
+/// Buffers a backward pass reuses from call to call, so that a gradient step allocates no
+/// activation buffers once warm (the LayerNorm kernels in `equigym_nn::ops` still take a
+/// per-call scratch of 16 x width floats, which belongs here). Fresh buffers each pass cost page faults: before they were kept, 23 % of a DSRL
 /// gradient step's time was spent in the kernel (`perf` on `examples/bench --only dsrl`).
 #[derive(Clone, Debug, Default)]
 pub struct Workspace<T> {

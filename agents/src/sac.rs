@@ -46,8 +46,8 @@ pub struct ActorSample<T> {
     scratch: Vec<T>,
 }
 
-/// Buffers the SAC losses reuse from call to call, so that a gradient step allocates nothing
-/// once warm (see [`Workspace`]).
+/// Buffers the SAC losses reuse from call to call, so that a gradient step allocates no
+/// activation buffers once warm (see [`Workspace`]).
 #[derive(Clone, Debug, Default)]
 pub struct Buffers<T> {
     ws: Workspace<T>,
