@@ -42,6 +42,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 import equigym  # noqa: F401  (registers the ids)
 from baselines.agents import EQUI_INITS, EquiSACPolicy, LayerNormSACPolicy, count_parameters
+from equigym.wrappers import TerminateOnSuccess
 
 METHODS = ("dsrl", "equi", "approx", "sac")
 LATENT_IDS = {"lift": "EquiLift-Latent-v0", "stack": "EquiStack-Latent-v0", "square": "EquiSquare-Latent-v0"}
@@ -95,7 +96,13 @@ def equi_fields_matching(task: str, target: int, layers: int, residual: bool) ->
 
 
 def build(
-    method: str, task: str, preset: dict[str, Any], seed: int, joint_limits: bool, policy_file: str | None
+    method: str,
+    task: str,
+    preset: dict[str, Any],
+    seed: int,
+    joint_limits: bool,
+    policy_file: str | None,
+    terminate_on_success: bool = False,
 ) -> tuple[SAC, Any]:
     env_kwargs: dict[str, Any] = {"joint_limits": joint_limits}
     if method == "sac":
@@ -110,7 +117,11 @@ def build(
         # The env truncates at its own horizon (400 control steps).
         return gymnasium.make(env_id, **env_kwargs)
 
-    venv = DummyVecEnv([make for _ in range(preset["n_envs"])])
+    def make_train() -> gymnasium.Env:
+        env = make()
+        return TerminateOnSuccess(env) if terminate_on_success else env
+
+    venv = DummyVecEnv([make_train for _ in range(preset["n_envs"])])
     venv.seed(seed)
     arch = [preset["width"]] * preset["layers"]
     common = dict(
@@ -335,6 +346,7 @@ def run(
     eval_episodes: int = 50,
     policy_file: str | None = None,
     progress: bool = True,
+    terminate_on_success: bool = False,
 ) -> Path:
     if isinstance(preset, str):
         preset = {"name": preset, **PRESETS[preset]}
@@ -343,7 +355,7 @@ def run(
     ckpt = run_dir / "checkpoint"
     ckpt.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(1)
-    model, make = build(method, task, preset, seed, joint_limits, policy_file)
+    model, make = build(method, task, preset, seed, joint_limits, policy_file, terminate_on_success)
     chunk = 1 if method == "sac" else 4
     meta = {
         "method": method,
@@ -352,6 +364,7 @@ def run(
         "preset": preset,
         "steps": steps,
         "joint_limits": joint_limits,
+        **({"terminate_on_success": True} if terminate_on_success else {}),
         "params_actor": count_parameters(model.actor),
         "params_critic": count_parameters(model.critic),
     }
@@ -394,6 +407,11 @@ def main(argv: list[str] | None = None) -> None:
     s.add_argument("--eval-every", type=int, default=2000)
     s.add_argument("--eval-episodes", type=int, default=50)
     s.add_argument("--policy", default=None, help="EDP file (default: the shipped one)")
+    s.add_argument(
+        "--terminate-on-success",
+        action="store_true",
+        help="end training episodes at the first successful latent step (evaluation unchanged)",
+    )
     b = sub.add_parser("base", help="success of the base policy alone (latent noise N(0, I))")
     b.add_argument("--task", default="lift", choices=sorted(LATENT_IDS))
     b.add_argument("--episodes", type=int, default=100)
@@ -430,6 +448,7 @@ def main(argv: list[str] | None = None) -> None:
             a.eval_episodes,
             a.policy,
             progress=not a.no_progress,
+            terminate_on_success=a.terminate_on_success,
         )
 
 

@@ -161,6 +161,12 @@ pub struct RunConfig {
     pub ent_init: Option<f64>,
     /// Episode length override (control steps); tests use short episodes.
     pub horizon: Option<usize>,
+    /// End training episodes at the first latent step that succeeds (a terminal transition,
+    /// then a reset) instead of running them to the horizon as DSRL does. The return then
+    /// counts the steps to success, the quantity the evaluation measures, rather than the time
+    /// spent successful, which after a lift depends on a part of the task the demos never show.
+    /// Evaluation is unchanged.
+    pub terminate_on_success: bool,
     /// Print a line per evaluation to stderr.
     pub progress: bool,
     /// Stop (as if killed) right after the checkpoint of this many evaluations (tests).
@@ -184,6 +190,7 @@ impl RunConfig {
             policy: None,
             ent_init: None,
             horizon: None,
+            terminate_on_success: false,
             progress: false,
             stop_after_evals: None,
         })
@@ -225,6 +232,9 @@ impl RunConfig {
 
     /// What must match for a checkpoint to be resumed (not steps, threads or output place).
     fn fingerprint(&self) -> String {
+        // Options added later append themselves only when set, so that earlier runs' checkpoints
+        // keep their fingerprints.
+        let later = if self.terminate_on_success { "|terminate_on_success" } else { "" };
         format!(
             "{}|{}|{}|{:?}|{}|{:?}|{}|{}|{}|{:?}|{:?}",
             self.method.name(),
@@ -238,7 +248,7 @@ impl RunConfig {
             self.policy_path().display(),
             self.ent_init,
             self.horizon
-        )
+        ) + later
     }
 
     fn validate(&self) -> Result<()> {
@@ -498,14 +508,15 @@ impl Runner {
         self.num_timesteps += n as u64;
         for (i, r) in results.iter().enumerate() {
             let next = to_f32(self.envs[i].env_mut().observe());
+            let terminal = r.terminated || (self.cfg.terminate_on_success && r.success);
             self.replay.push(
                 &obs[i * od..(i + 1) * od],
                 &scaled[i * ad..(i + 1) * ad],
                 r.reward as f32,
                 &next,
-                r.terminated,
+                terminal,
             );
-            if r.terminated || r.truncated {
+            if terminal || r.truncated {
                 let seed = self.streams.env_seeds.next_u64();
                 self.envs[i].reset(seed)?;
             }
@@ -802,6 +813,9 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         "{{\"method\": \"{}\", \"task\": \"{}\", \"seed\": {}, \"steps\": {}, \"preset\": \"{}\", \"joint_limits\": {}, \"agent\": \"rust\", \"fields\": {}, \"params_actor\": {}, \"params_critic\": {}, \"policy\": \"{}\"}}\n",
         cfg.method.name(), cfg.task, cfg.seed, cfg.steps, cfg.preset.name, cfg.joint_limits, fields, params_actor, params_critic, cfg.policy_path().display()
     );
+    // Later options are recorded only when set (earlier runs' run.json stay as they were).
+    let meta =
+        if cfg.terminate_on_success { meta.replacen("}\n", ", \"terminate_on_success\": true}\n", 1) } else { meta };
     write_atomic(&dir.join("run.json"), meta.as_bytes())?;
     let base_elapsed = r.elapsed;
     let steps_at_start = r.env_steps();

@@ -18,6 +18,7 @@
 //! | [`SeedUse::AutoReset`] | 1 | `BatchEnv`: episode seeds of automatic resets after `reset(seed)` |
 //! | [`SeedUse::Expert`] | 2 | scripted experts: waypoint noise of the episode seeded `seed` |
 //! | [`SeedUse::SymmetryProbe`] | 3 | `equigym-wrappers` symmetry-breaking measurement: states and group elements |
+//! | [`SeedUse::Steerability`] | 4 | `equigym-wrappers` steerability diagnostic: the latent noise of its rollouts |
 
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -35,11 +36,14 @@ pub enum SeedUse {
     Expert,
     /// The symmetry-breaking measurement's sampling of states and group elements.
     SymmetryProbe,
+    /// The steerability diagnostic's latent noise (one stream per rollout).
+    Steerability,
 }
 
 impl SeedUse {
     /// Every use, in tag order.
-    pub const ALL: [SeedUse; 4] = [SeedUse::Episode, SeedUse::AutoReset, SeedUse::Expert, SeedUse::SymmetryProbe];
+    pub const ALL: [SeedUse; 5] =
+        [SeedUse::Episode, SeedUse::AutoReset, SeedUse::Expert, SeedUse::SymmetryProbe, SeedUse::Steerability];
 
     /// The ChaCha8 stream id of this use (distinct per use, never reused).
     pub const fn tag(self) -> u64 {
@@ -48,6 +52,7 @@ impl SeedUse {
             SeedUse::AutoReset => 1,
             SeedUse::Expert => 2,
             SeedUse::SymmetryProbe => 3,
+            SeedUse::Steerability => 4,
         }
     }
 }

@@ -27,7 +27,7 @@ from equigym.latent import LATENT_ENV_IDS, EquiLatentEnv, EquiLatentVectorEnv, r
 from equigym.rendering import save_gif
 from equigym.symmetry import Symmetry, measure_breaking
 from equigym.vector import EquiVectorEnv
-from equigym.wrappers import SymmetryWrapper
+from equigym.wrappers import SymmetryWrapper, TerminateOnSuccess
 
 register_envs()
 register_latent_envs()
@@ -54,6 +54,7 @@ __all__ = [
     "ResetNeeded",
     "Symmetry",
     "SymmetryWrapper",
+    "TerminateOnSuccess",
     "UrdfError",
     "__version__",
     "asset_path",

@@ -318,6 +318,7 @@ def steer_run(
     policy: str | PathLike[str] | None = None,
     ent_init: float | None = None,
     horizon: int | None = None,
+    terminate_on_success: bool = False,
     progress: bool = False,
     stop_after_evals: int | None = None,
 ) -> dict[str, Any]: ...

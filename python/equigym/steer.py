@@ -60,6 +60,7 @@ def run(
     policy: str | None = None,
     ent_init: float | None = None,
     horizon: int | None = None,
+    terminate_on_success: bool = False,
     progress: bool = True,
 ) -> dict[str, Any]:
     """One Rust steering run (see the module docs); returns its summary (``run_dir``, ``rows``,
@@ -80,6 +81,7 @@ def run(
         policy=_policy(task, policy),
         ent_init=ent_init,
         horizon=horizon,
+        terminate_on_success=terminate_on_success,
         progress=progress,
     )
 
@@ -109,6 +111,7 @@ def _trainable(config: dict[str, Any]) -> None:
                 eval_episodes=c["eval_episodes"],
                 policy=c["policy"],
                 ent_init=c["ent_init"],
+                terminate_on_success=c.get("terminate_on_success", False),
                 progress=False,
             )
             last = s["rows"][-1] if s["rows"] else (0, float("nan"), float("nan"), 0.0)
@@ -132,6 +135,7 @@ def _trainable(config: dict[str, Any]) -> None:
                 c["eval_episodes"],
                 c["policy"],
                 progress=False,
+                terminate_on_success=c.get("terminate_on_success", False),
             )
             rows = (d / "log.csv").read_text().strip().splitlines()[1:]
             last = [float(v) for v in rows[-1].split(",")] if rows else [0, float("nan"), float("nan"), 0.0]
@@ -192,6 +196,7 @@ def sweep(a: argparse.Namespace) -> None:
         "eval_episodes": a.eval_episodes,
         "policy": a.policy,
         "ent_init": a.ent_init,
+        "terminate_on_success": a.terminate_on_success,
         "out_root": str(out),
     }
 
@@ -325,6 +330,11 @@ def main(argv: list[str] | None = None) -> None:
         s.add_argument("--eval-episodes", type=int, default=50)
         s.add_argument("--policy", default=None, help="EDP file (default: the shipped one)")
         s.add_argument(
+            "--terminate-on-success",
+            action="store_true",
+            help="end training episodes at the first successful latent step (evaluation unchanged)",
+        )
+        s.add_argument(
             "--ent-init", type=float, default=None, help="initial entropy coefficient (default: the preset's)"
         )
     r = sub.add_parser("report")
@@ -357,6 +367,7 @@ def main(argv: list[str] | None = None) -> None:
             policy=a.policy,
             ent_init=a.ent_init,
             horizon=a.horizon,
+            terminate_on_success=a.terminate_on_success,
             progress=not a.quiet,
         )
         print(json.dumps({k: v for k, v in s.items() if k != "rows"}, default=str))

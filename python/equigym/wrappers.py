@@ -52,3 +52,18 @@ class SymmetryWrapper(gymnasium.Wrapper):
         fit = self.symmetry.transform_state(self.env, g, angle=angle)
         obs = self.env.unwrapped.core.observe().astype(np.float32)
         return obs, fit
+
+
+class TerminateOnSuccess(gymnasium.Wrapper):
+    """End an episode at its first successful step (``terminated=True``).
+
+    The latent environments run to the horizon, as DSRL's do, so a training return counts the
+    time spent successful. After a lift that depends on behaviour the demonstrations never show
+    (they end at success) and the base policy loses every cube it lifts (docs/steering.md,
+    "Steerability"). Terminating on success makes the return count the steps to success, which
+    is what the evaluation measures. Wrap training environments only; evaluate unwrapped.
+    """
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, reward, bool(terminated or info.get("success", False)), truncated, info

@@ -11,6 +11,8 @@
 //!   rotated demonstrations).
 //! - [`edp`]: the exported equivariant diffusion policy (safetensors) and batched DDIM.
 //! - [`latent`]: the latent-action MDP (DSRL): latent noise -> DDIM -> action chunk -> steps.
+//! - [`steerability`]: how much the latent noise changes success, measured with the base policy
+//!   (the diagnostic to run before training steering agents).
 //!
 //! ```no_run
 //! use equigym_wrappers::{Group, TaskSymmetry};
@@ -28,6 +30,7 @@ pub mod error;
 pub mod group;
 pub mod latent;
 pub mod representation;
+pub mod steerability;
 pub mod symmetry;
 
 pub use edp::DiffusionPolicy;
