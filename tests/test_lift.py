@@ -157,3 +157,22 @@ def test_vector_env_runs(lift):
     obs, r, term, trunc, _ = envs.step(envs.action_space.sample())
     assert obs.shape == (2, 22) and r.shape == (2,)
     envs.close()
+
+
+def test_terminate_on_success_ends_the_episode_at_the_first_success():
+    # The same expert episode with and without the wrapper: the wrapped one terminates at the
+    # step whose info reports success, and only there; the plain env never terminates.
+    plain, wrapped = gymnasium.make("EquiLift-v0"), equigym.TerminateOnSuccess(gymnasium.make("EquiLift-v0"))
+    ends = []
+    for env in (plain, wrapped):
+        core = env.unwrapped.core
+        expert = equigym.Expert("lift")
+        env.reset(seed=0)
+        expert.reset(core, 0)
+        for t in range(150):
+            _, _, terminated, truncated, info = env.step(expert.act(core))
+            if terminated or info["success"]:
+                ends.append((t, terminated, info["success"]))
+                break
+    assert ends[0][0] == ends[1][0]
+    assert ends[0][1:] == (False, True) and ends[1][1:] == (True, True)

@@ -238,3 +238,15 @@ def test_a_6k_step_equi_run_matches_its_recorded_weights(tmp_path):
     assert s["grad_steps"] == 2000
     assert [(r[0], r[1], r[2]) for r in s["rows"]] == [(16, 1.0, -0.7359681129455566), (6000, 0.5, -6.878249168395996)]
     assert s["params_hash"] == "28c77ada7ccce7a4"
+
+
+def test_summarize_counts_the_peak_only_once_training_started():
+    # Evaluations at 0 and 4k are the warm-up's (entropy coefficient still at its start value):
+    # their 0.9 is not a learned peak. Final is the mean of the last three.
+    log = [
+        {"env_steps": str(k), "success_rate": str(v)} for k, v in [(0, 0.6), (4, 0.9), (6, 0.5), (8, 0.7), (10, 0.3)]
+    ]
+    train = {str(k): {"alpha": a} for k, a in [(0, "0.2"), (4, "0.2"), (6, "0.1"), (8, "0.09"), (10, "0.08")]}
+    s = steer.summarize(log, train)
+    assert s["untrained"] == 0.6 and s["peak"] == 0.7
+    assert abs(s["final"] - 0.5) < 1e-12

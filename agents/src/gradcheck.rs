@@ -162,6 +162,7 @@ pub fn grad_case(method: Method, task: &str, seed: u64, rows: usize) -> Result<G
         rows,
         obs: obs.clone(),
         act: act.clone(),
+        chunk: Vec::new(),
         reward: reward.clone(),
         next_obs: next_obs.clone(),
         done: done.clone(),

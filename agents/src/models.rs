@@ -229,12 +229,23 @@ pub fn matched_fields(sym: &TaskSymmetry, arch: Arch, residual: bool) -> Result<
 impl<T: Real> Models<T> {
     /// Build a method's networks for a task, initialised from the run seed's init stream.
     pub fn new(method: Method, sym: &TaskSymmetry, arch: Arch, seed: u64) -> Result<Self> {
+        Self::from_stream(method, sym, arch, seed, Stream::Init)
+    }
+
+    /// The twin action-space critics Q(s, a) of the noise-aliased agents (DSRL-NA): the same
+    /// critic architecture as the noise critics (an action chunk has the latent noise's size and
+    /// representation), initialised from their own stream.
+    pub fn action_critics(method: Method, sym: &TaskSymmetry, arch: Arch, seed: u64) -> Result<[Net<T>; 2]> {
+        Ok(Self::from_stream(method, sym, arch, seed, Stream::InitActionCritics)?.critics)
+    }
+
+    fn from_stream(method: Method, sym: &TaskSymmetry, arch: Arch, seed: u64, init: Stream) -> Result<Self> {
         if arch.layers == 0 || arch.width == 0 {
             return Err(Error::InvalidOption(format!("networks need at least one layer of width >= 1, got {arch:?}")));
         }
         let io = io(sym)?;
         let (od, ld) = (io.obs_dim, io.latent_dim);
-        let mut rng: Vec<Rng> = (0..3).map(|i| Rng::new(seed, Stream::Init, i)).collect();
+        let mut rng: Vec<Rng> = (0..3).map(|i| Rng::new(seed, init, i)).collect();
         match method {
             Method::Dsrl => {
                 let actor = mlp(od, arch, 2 * ld, &mut rng[0]);

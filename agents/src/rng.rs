@@ -14,6 +14,7 @@
 //! | [`Stream::MeanQ`] | the replay sample whose mean Q the log reports |
 //! | [`Stream::Eval`] | the stochastic actor's noise in evaluation episode `index` |
 //! | [`Stream::Diagnostics`] | replay sample and actor noise of the learner diagnostics at evaluation `index` |
+//! | [`Stream::InitActionCritics`] | initial weights of the noise-aliased agents' action critics (index 1 and 2) |
 
 use equigym_envs::rng::{box_muller, box_muller_uniforms};
 use equigym_nn::{ops, Real};
@@ -34,6 +35,7 @@ pub enum Stream {
     MeanQ = 7,
     Eval = 8,
     Diagnostics = 9,
+    InitActionCritics = 10,
 }
 
 /// Domain separator in every key, so that these streams differ from any other ChaCha use.

@@ -46,7 +46,7 @@ use crate::error::{io_err, Error, Result};
 use crate::models::{Arch, Method, Models, GROUP_ORDER};
 use crate::replay::{Batch, Replay, DEFAULT_CAPACITY};
 use crate::rng::{Rng, Stream};
-use crate::sac::{normals, Diagnostics, Sac, SacConfig};
+use crate::sac::{normals, Diagnostics, Sac, SacConfig, StepStats};
 
 /// Learning rate, Polyak rate and target entropy (DSRL's).
 pub const LEARNING_RATE: f64 = 3e-4;
@@ -62,7 +62,7 @@ pub const EVAL_SEED: u64 = 10_000;
 /// Replay transitions whose mean Q the log reports.
 pub const MEAN_Q_SAMPLE: usize = 256;
 /// Checkpoint format tag.
-pub const CHECKPOINT_FORMAT: &str = "equigym-agents-ckpt-2";
+pub const CHECKPOINT_FORMAT: &str = "equigym-agents-ckpt-3";
 const CHECKPOINT_FILE: &str = "checkpoint.bin";
 const SUMMARY_FILE: &str = "summary.json";
 
@@ -167,6 +167,15 @@ pub struct RunConfig {
     /// spent successful, which after a lift depends on a part of the task the demos never show.
     /// Evaluation is unchanged.
     pub terminate_on_success: bool,
+    /// Noise aliasing (DSRL-NA, [`Sac::train_step_aliased`]): an action-space critic trained by
+    /// TD on the executed chunks, the noise critic distilled from it. Any method: the action
+    /// critic has the noise critic's architecture (equivariant nets: invariant, since a chunk
+    /// has the noise's representation).
+    pub noise_aliased: bool,
+    /// Target entropy of the actor (default: DSRL's 0). With target 0 the 40-d latent actor
+    /// narrows to a std of about 0.3, and narrow noise is what the shipped EDPs do worst with
+    /// (docs/steering.md, "Steerability").
+    pub target_entropy: Option<f64>,
     /// Print a line per evaluation to stderr.
     pub progress: bool,
     /// Stop (as if killed) right after the checkpoint of this many evaluations (tests).
@@ -191,6 +200,8 @@ impl RunConfig {
             ent_init: None,
             horizon: None,
             terminate_on_success: false,
+            noise_aliased: false,
+            target_entropy: None,
             progress: false,
             stop_after_evals: None,
         })
@@ -234,7 +245,14 @@ impl RunConfig {
     fn fingerprint(&self) -> String {
         // Options added later append themselves only when set, so that earlier runs' checkpoints
         // keep their fingerprints.
-        let later = if self.terminate_on_success { "|terminate_on_success" } else { "" };
+        let mut later = [(self.terminate_on_success, "|terminate_on_success"), (self.noise_aliased, "|noise_aliased")]
+            .iter()
+            .filter(|(on, _)| *on)
+            .map(|(_, s)| *s)
+            .collect::<String>();
+        if let Some(t) = self.target_entropy {
+            later.push_str(&format!("|target_entropy={t:?}"));
+        }
         format!(
             "{}|{}|{}|{:?}|{}|{:?}|{}|{}|{}|{:?}|{:?}",
             self.method.name(),
@@ -248,7 +266,7 @@ impl RunConfig {
             self.policy_path().display(),
             self.ent_init,
             self.horizon
-        ) + later
+        ) + &later
     }
 
     fn validate(&self) -> Result<()> {
@@ -262,6 +280,9 @@ impl RunConfig {
         }
         if self.eval_every == 0 || self.eval_episodes == 0 {
             return bad("eval_every and eval_episodes must be >= 1".into());
+        }
+        if self.target_entropy.is_some_and(|t| !t.is_finite()) {
+            return bad(format!("the target entropy must be finite, got {:?}", self.target_entropy));
         }
         let ent = self.ent_init.unwrap_or(p.ent_init);
         if !(ent.is_finite() && ent > 0.0) {
@@ -350,6 +371,35 @@ struct Checkpoint {
     elapsed: f64,
     rows: Vec<LogRow>,
     diagnostics: Vec<Diagnostics>,
+    /// The noise-aliased agents' action critics (None for the others).
+    action_critics: Option<ActionCriticState>,
+}
+
+#[derive(Serialize, Deserialize)]
+struct ActionCriticState {
+    critics: [Vec<f32>; 2],
+    targets: [Vec<f32>; 2],
+    opt: [Adam<f32>; 2],
+}
+
+/// The diffusion policy's normalised chunks for `rows` observations and scaled latent actions
+/// (the noise-aliased step's decoder): the latent is scaled to the bound, clamped there (as the
+/// latent environments clamp), denoised and normalised.
+fn decode_normalized(policy: &DiffusionPolicy, obs: &[f32], w: &[f32], rows: usize, out: &mut Vec<f32>) {
+    let o: Vec<f64> = obs.iter().map(|v| *v as f64).collect();
+    let l: Vec<f64> = w
+        .iter()
+        .map(|v| (*v as f64 * DEFAULT_LATENT_BOUND).clamp(-DEFAULT_LATENT_BOUND, DEFAULT_LATENT_BOUND))
+        .collect();
+    let mut c = vec![0.0; rows * policy.action_dim()];
+    // Inputs come from the replay and the actor (finite, of the policy's shapes): a failure here
+    // is a bug, not user input, and the run's divergence check reports the NaN it leaves.
+    if policy.sample(&o, &l, policy.default_ddim_steps, &mut c).is_err() {
+        c.fill(f64::NAN);
+    }
+    policy.normalize_actions(&mut c);
+    out.clear();
+    out.extend(c.iter().map(|v| *v as f32));
 }
 
 /// FNV-1a over f32 bits.
@@ -509,13 +559,15 @@ impl Runner {
         for (i, r) in results.iter().enumerate() {
             let next = to_f32(self.envs[i].env_mut().observe());
             let terminal = r.terminated || (self.cfg.terminate_on_success && r.success);
-            self.replay.push(
-                &obs[i * od..(i + 1) * od],
-                &scaled[i * ad..(i + 1) * ad],
-                r.reward as f32,
-                &next,
-                terminal,
-            );
+            let chunk = if self.cfg.noise_aliased {
+                let mut c = self.envs[i].last_chunk().to_vec();
+                self.policy.normalize_actions(&mut c);
+                to_f32(&c)
+            } else {
+                Vec::new()
+            };
+            let (o, a) = (&obs[i * od..(i + 1) * od], &scaled[i * ad..(i + 1) * ad]);
+            self.replay.push_with_chunk(o, a, &chunk, r.reward as f32, &next, terminal);
             if terminal || r.truncated {
                 let seed = self.streams.env_seeds.next_u64();
                 self.envs[i].reset(seed)?;
@@ -526,7 +578,21 @@ impl Runner {
         if self.num_timesteps as usize > self.cfg.preset.warmup {
             for _ in 0..self.cfg.utd() * n {
                 self.replay.sample(self.cfg.preset.batch, &mut self.streams.replay, batch);
-                let stats = self.sac.train_step(batch, &mut self.streams.train);
+                let stats = if self.cfg.noise_aliased {
+                    let policy = &self.policy;
+                    let mut decode = |obs: &[f32], w: &[f32], rows: usize, out: &mut Vec<f32>| {
+                        decode_normalized(policy, obs, w, rows, out)
+                    };
+                    let s =
+                        self.sac.train_step_aliased(batch, &mut decode, DEFAULT_LATENT_BOUND, &mut self.streams.train);
+                    StepStats {
+                        critic_loss: s.action_critic_loss + s.distill_loss,
+                        actor_loss: s.actor_loss,
+                        ..Default::default()
+                    }
+                } else {
+                    self.sac.train_step(batch, &mut self.streams.train)
+                };
                 self.grad_steps += 1;
                 if !(stats.critic_loss.is_finite() && stats.actor_loss.is_finite()) {
                     return Err(Error::Diverged(format!(
@@ -625,6 +691,11 @@ impl Runner {
             elapsed: self.elapsed,
             rows: self.rows.clone(),
             diagnostics: self.diagnostics.clone(),
+            action_critics: self.sac.aliased.as_ref().map(|na| ActionCriticState {
+                critics: [na.critics[0].params.clone(), na.critics[1].params.clone()],
+                targets: [na.targets[0].params.clone(), na.targets[1].params.clone()],
+                opt: na.opt.clone(),
+            }),
         })
     }
 
@@ -678,6 +749,26 @@ impl Runner {
         self.elapsed = c.elapsed;
         self.rows = c.rows;
         self.diagnostics = c.diagnostics;
+        match (self.sac.aliased.as_mut(), c.action_critics) {
+            (Some(na), Some(s)) => {
+                for k in 0..2 {
+                    fit("action critic", s.critics[k].len(), na.critics[k].num_params())?;
+                    fit("action target", s.targets[k].len(), na.targets[k].num_params())?;
+                }
+                let [c0, c1] = s.critics;
+                let [t0, t1] = s.targets;
+                na.critics[0].params = c0;
+                na.critics[1].params = c1;
+                na.targets[0].params = t0;
+                na.targets[1].params = t1;
+                for n in na.critics.iter_mut().chain(na.targets.iter_mut()) {
+                    n.expand();
+                }
+                na.opt = s.opt;
+            }
+            (None, None) => {}
+            _ => return Err(bad("action critics saved for a run without noise aliasing, or missing".into())),
+        }
         Ok(())
     }
 
@@ -752,11 +843,17 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         lr: LEARNING_RATE,
         gamma: cfg.gamma(),
         tau: TAU,
-        target_entropy: TARGET_ENTROPY,
+        target_entropy: cfg.target_entropy.unwrap_or(TARGET_ENTROPY),
         ent_init: cfg.ent_init.unwrap_or(cfg.preset.ent_init),
     };
-    let sac = Sac::new(models, obs_dim, sac_cfg);
+    let sac = if cfg.noise_aliased {
+        let action_critics = Models::<f32>::action_critics(cfg.method, &sym, arch, cfg.seed)?;
+        Sac::aliased(models, action_critics, obs_dim, sac_cfg)
+    } else {
+        Sac::new(models, obs_dim, sac_cfg)
+    };
     let latent_dim = sac.latent_dim();
+    let chunk_dim = if cfg.noise_aliased { policy.action_dim() } else { 0 };
     let mut r = Runner {
         cfg: cfg.clone(),
         policy,
@@ -764,7 +861,7 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         sac,
         envs,
         eval_envs: Vec::new(),
-        replay: Replay::new(obs_dim, latent_dim, DEFAULT_CAPACITY),
+        replay: Replay::with_chunks(obs_dim, latent_dim, chunk_dim, DEFAULT_CAPACITY),
         streams: Streams::new(cfg.seed),
         num_timesteps: 0,
         next_eval: 0,
@@ -814,8 +911,15 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         cfg.method.name(), cfg.task, cfg.seed, cfg.steps, cfg.preset.name, cfg.joint_limits, fields, params_actor, params_critic, cfg.policy_path().display()
     );
     // Later options are recorded only when set (earlier runs' run.json stay as they were).
-    let meta =
-        if cfg.terminate_on_success { meta.replacen("}\n", ", \"terminate_on_success\": true}\n", 1) } else { meta };
+    let mut meta = meta;
+    for (on, name) in [(cfg.terminate_on_success, "terminate_on_success"), (cfg.noise_aliased, "noise_aliased")] {
+        if on {
+            meta = meta.replacen("}\n", &format!(", \"{name}\": true}}\n"), 1);
+        }
+    }
+    if let Some(t) = cfg.target_entropy {
+        meta = meta.replacen("}\n", &format!(", \"target_entropy\": {t:?}}}\n"), 1);
+    }
     write_atomic(&dir.join("run.json"), meta.as_bytes())?;
     let base_elapsed = r.elapsed;
     let steps_at_start = r.env_steps();

@@ -12,6 +12,20 @@
 //! 5. actor loss `mean(alpha log pi(a|s) - min_k Q_k(s, a))` through the *updated* critics, one
 //!    Adam step;
 //! 6. targets `Q' <- (1 - tau) Q' + tau Q`.
+//!
+//! The noise-aliased variant (DSRL-NA, [`Sac::train_step_aliased`]) learns the value of the
+//! action chunk instead of the noise: the map from actions to outcomes is smooth where the map
+//! from noise to outcomes is not (docs/steering.md, "Steerability"), and many noises alias one
+//! chunk. Its step:
+//! 1. and 2. as above;
+//! 3. target `y = r + gamma (1 - terminated) (min_k Q^A'_k(s', D(s', w')) - alpha log pi(w'|s'))`,
+//!    `w' ~ pi(.|s')`, `D` the diffusion policy's (normalised) chunk;
+//! 4. action-critic loss `0.5 sum_k mean (Q^A_k(s, a) - y)^2` at the executed chunk `a`;
+//! 5. distillation: the noise critics regress `min_k Q^A_k(s, D(s, w))` (updated critics) at
+//!    `w ~ N(0, I)` clipped to the latent box, `0.5 sum_k mean (Q^W_k(s, w) - q)^2`;
+//! 6. actor loss as in 5. above, through the noise critics;
+//! 7. Polyak for the action critics' targets (and for the noise critics' targets, read only by
+//!    the learner diagnostics).
 
 use equigym_nn::{Adam, AdamConfig, Real};
 use serde::{Deserialize, Serialize};
@@ -254,6 +268,34 @@ pub fn alpha_loss_grad<T: Real>(log_alpha: T, logp: &[T], target_entropy: f64) -
     ((-(log_alpha * mean)).to_f64(), -mean)
 }
 
+/// The action-space critics of the noise-aliased variant, with their targets and optimisers.
+#[derive(Clone, Debug)]
+pub struct ActionCritics<T> {
+    pub critics: [Net<T>; 2],
+    pub targets: [Net<T>; 2],
+    pub opt: [Adam<T>; 2],
+}
+
+impl<T: Real> ActionCritics<T> {
+    pub fn new(critics: [Net<T>; 2], lr: f64) -> Self {
+        let opt = [adam_for(&critics[0], lr), adam_for(&critics[1], lr)];
+        Self { targets: critics.clone(), critics, opt }
+    }
+}
+
+/// Maps `rows` observations and scaled latent actions (in [-1, 1]) to the diffusion policy's
+/// normalised action chunks (rows x latent dim), for the noise-aliased step.
+pub type ChunkDecoder<'a, T> = dyn FnMut(&[T], &[T], usize, &mut Vec<T>) + 'a;
+
+/// What one noise-aliased gradient step reports.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AliasedStats {
+    pub action_critic_loss: f64,
+    pub distill_loss: f64,
+    pub actor_loss: f64,
+    pub alpha: f64,
+}
+
 /// The SAC learner: networks, targets, optimisers, entropy coefficient.
 pub struct Sac<T> {
     pub config: SacConfig,
@@ -266,6 +308,8 @@ pub struct Sac<T> {
     pub opt_critics: [Adam<T>; 2],
     pub opt_alpha: Adam<T>,
     pub obs_dim: usize,
+    /// The action critics of the noise-aliased variant (`None`: plain SAC on the noise).
+    pub aliased: Option<ActionCritics<T>>,
     scratch: Scratch<T>,
 }
 
@@ -321,6 +365,40 @@ pub fn concat_rows<T: Real>(obs: &[T], od: usize, act: &[T], ad: usize, rows: us
     }
 }
 
+/// min_k net_k(obs, act) per row, for twin nets (`x` and `tape` are reused buffers).
+#[allow(clippy::too_many_arguments)]
+fn min_over<T: Real>(
+    nets: &[Net<T>; 2],
+    obs: &[T],
+    od: usize,
+    act: &[T],
+    ad: usize,
+    rows: usize,
+    x: &mut Vec<T>,
+    tape: &mut Tape<T>,
+) -> Vec<T> {
+    concat_rows(obs, od, act, ad, rows, x);
+    let mut q = vec![T::ZERO; rows];
+    for (k, n) in nets.iter().enumerate() {
+        n.forward(x, rows, tape);
+        for (qi, v) in q.iter_mut().zip(tape.output()) {
+            *qi = if k == 0 { *v } else { qi.min(*v) };
+        }
+    }
+    q
+}
+
+/// Targets `Q' <- (1 - tau) Q' + tau Q`.
+fn polyak<T: Real>(targets: &mut [Net<T>; 2], critics: &[Net<T>; 2], tau: f64) {
+    let (tau, keep) = (T::from_f64(tau), T::from_f64(1.0 - tau));
+    for (t, c) in targets.iter_mut().zip(critics) {
+        for (tp, cp) in t.params.iter_mut().zip(&c.params) {
+            *tp = *tp * keep + *cp * tau;
+        }
+        t.expand();
+    }
+}
+
 /// Optimiser segments of a net (its weight-decay groups).
 fn adam_for<T: Real>(net: &Net<T>, lr: f64) -> Adam<T> {
     Adam::new(AdamConfig::new(lr), net.num_params(), net.decay.clone())
@@ -344,8 +422,111 @@ impl<T: Real> Sac<T> {
             opt_critics,
             opt_alpha,
             obs_dim,
+            aliased: None,
             scratch: Scratch::default(),
         }
+    }
+
+    /// The noise-aliased learner: `critics` become the noise critics Q^W (trained by
+    /// distillation) and `action_critics` the TD-trained Q^A.
+    pub fn aliased(models: Models<T>, action_critics: [Net<T>; 2], obs_dim: usize, config: SacConfig) -> Self {
+        let mut sac = Self::new(models, obs_dim, config);
+        sac.aliased = Some(ActionCritics::new(action_critics, config.lr));
+        sac
+    }
+
+    /// One noise-aliased gradient step (see the module docs): `batch.chunk` holds the executed
+    /// chunks, `decode` runs the diffusion policy; `rng` is the training stream, which also draws
+    /// the distillation noise. A learner built without action critics does a plain step.
+    pub fn train_step_aliased(
+        &mut self,
+        batch: &Batch<T>,
+        decode: &mut ChunkDecoder<'_, T>,
+        bound: f64,
+        rng: &mut Rng,
+    ) -> AliasedStats {
+        let (od, ad, b) = (self.obs_dim, self.head.dim, batch.rows);
+        let Some(na) = self.aliased.as_mut() else {
+            let s = self.train_step(batch, rng);
+            return AliasedStats {
+                action_critic_loss: s.critic_loss,
+                distill_loss: 0.0,
+                actor_loss: s.actor_loss,
+                alpha: s.alpha,
+            };
+        };
+        let sc = &mut self.scratch;
+        // 1. w ~ pi(.|s)
+        sc.eps.resize(b * ad, T::ZERO);
+        normals(rng, &mut sc.eps);
+        self.head.sample(&self.actor, &batch.obs, b, &sc.eps, &mut sc.s1);
+        // 2. entropy coefficient
+        let alpha = self.log_alpha.exp();
+        let (_, g_alpha) = alpha_loss_grad(self.log_alpha, &sc.s1.logp, self.config.target_entropy);
+        let mut la = [self.log_alpha];
+        self.opt_alpha.update(&mut la, &[g_alpha]);
+        self.log_alpha = la[0];
+        // 3. target through the action critics' targets at the decoded next chunk
+        normals(rng, &mut sc.eps);
+        self.head.sample(&self.actor, &batch.next_obs, b, &sc.eps, &mut sc.s2);
+        let mut next_chunk = std::mem::take(&mut sc.grads);
+        decode(&batch.next_obs, &sc.s2.a, b, &mut next_chunk);
+        let next_q = min_over(&na.targets, &batch.next_obs, od, &next_chunk, ad, b, &mut sc.x, &mut sc.tape);
+        let gamma = T::from_f64(self.config.gamma);
+        sc.y.clear();
+        sc.y.extend(
+            (0..b).map(|r| batch.reward[r] + (T::ONE - batch.done[r]) * gamma * (next_q[r] - alpha * sc.s2.logp[r])),
+        );
+        // 4. action critics at the executed chunks
+        concat_rows(&batch.obs, od, &batch.chunk, ad, b, &mut sc.x);
+        let mut action_critic_loss = 0.0;
+        for k in 0..2 {
+            let c = &mut na.critics[k];
+            next_chunk.clear();
+            next_chunk.resize(c.num_params(), T::ZERO);
+            action_critic_loss += critic_loss_grad(c, &sc.x, &sc.y, &mut next_chunk, &mut sc.buf);
+            na.opt[k].update(&mut c.params, &next_chunk);
+            c.expand();
+        }
+        // 5. distil the noise critics from the updated action critics over w ~ N(0, I) in the box
+        normals(rng, &mut sc.eps);
+        for e in sc.eps.iter_mut() {
+            *e = T::from_f64(e.to_f64().clamp(-bound, bound) / bound);
+        }
+        let mut chunk = Vec::new();
+        decode(&batch.obs, &sc.eps, b, &mut chunk);
+        let q = min_over(&na.critics, &batch.obs, od, &chunk, ad, b, &mut sc.x, &mut sc.tape);
+        concat_rows(&batch.obs, od, &sc.eps, ad, b, &mut sc.x);
+        let mut distill_loss = 0.0;
+        for k in 0..2 {
+            let c = &mut self.critics[k];
+            next_chunk.clear();
+            next_chunk.resize(c.num_params(), T::ZERO);
+            distill_loss += critic_loss_grad(c, &sc.x, &q, &mut next_chunk, &mut sc.buf);
+            self.opt_critics[k].update(&mut c.params, &next_chunk);
+            c.expand();
+        }
+        // 6. actor through the noise critics
+        next_chunk.clear();
+        next_chunk.resize(self.actor.num_params(), T::ZERO);
+        let actor_loss = actor_loss_grad(
+            &self.head,
+            &self.actor,
+            &self.critics,
+            &batch.obs,
+            &sc.s1,
+            alpha,
+            &mut next_chunk,
+            &mut sc.buf,
+        );
+        self.opt_actor.update(&mut self.actor.params, &next_chunk);
+        self.actor.expand();
+        sc.grads = next_chunk;
+        // 7. Polyak for the action critics (and the noise critics' targets, which only the
+        //    learner diagnostics read)
+        polyak(&mut na.targets, &na.critics, self.config.tau);
+        polyak(&mut self.targets, &self.critics, self.config.tau);
+        AliasedStats { action_critic_loss, distill_loss, actor_loss, alpha: alpha.to_f64() }
     }
 
     pub fn latent_dim(&self) -> usize {
@@ -470,14 +651,7 @@ impl<T: Real> Sac<T> {
         self.opt_actor.update(&mut self.actor.params, &sc.grads);
         self.actor.expand();
         // 6. Polyak
-        let tau = T::from_f64(self.config.tau);
-        let keep = T::from_f64(1.0 - self.config.tau);
-        for (t, c) in self.targets.iter_mut().zip(&self.critics) {
-            for (tp, cp) in t.params.iter_mut().zip(&c.params) {
-                *tp = *tp * keep + *cp * tau;
-            }
-            t.expand();
-        }
+        polyak(&mut self.targets, &self.critics, self.config.tau);
         StepStats { critic_loss, actor_loss, alpha: alpha.to_f64(), alpha_loss: alpha_loss.to_f64() }
     }
 }

@@ -137,3 +137,51 @@ fn bad_options_and_foreign_checkpoints_are_typed_errors() {
     assert!(matches!(run(&c), Err(equigym_agents::Error::Checkpoint { .. })));
     let _ = std::fs::remove_dir_all(dir);
 }
+
+#[test]
+fn noise_aliased_runs_resume_bit_for_bit_and_learn_otherwise() {
+    // DSRL-NA with training episodes that end at success: thread count and a kill + resume
+    // change nothing (the action critics and the chunk replay are checkpointed), and the
+    // learner is not the plain one.
+    let method = Method::Equi;
+    let cfg = |dir: &Path| {
+        let mut c = tiny(method, dir);
+        c.noise_aliased = true;
+        c.terminate_on_success = true;
+        c
+    };
+    let a_dir = scratch("na-a");
+    let a = run(&cfg(&a_dir)).unwrap();
+    assert_eq!(a.rows.len(), 4);
+    let plain_dir = scratch("na-plain");
+    let plain = run(&tiny(method, &plain_dir)).unwrap();
+    assert_ne!(a.params_hash, plain.params_hash, "noise aliasing changes the learner");
+    let meta = std::fs::read_to_string(a_dir.join("lift/equi/seed3/run.json")).unwrap();
+    assert!(meta.contains("\"terminate_on_success\": true, \"noise_aliased\": true}"), "{meta}");
+    serde_json::from_str::<serde_json::Value>(&meta).unwrap();
+
+    let b_dir = scratch("na-b");
+    let mut cb = cfg(&b_dir);
+    cb.threads = 2;
+    let b = run(&cb).unwrap();
+    assert_eq!((numbers(&a.rows), a.params_hash), (numbers(&b.rows), b.params_hash), "threads 1 vs 2");
+
+    let c_dir = scratch("na-c");
+    let mut cc = cfg(&c_dir);
+    // Stopped after the third evaluation (256 env steps), past the warm-up (48 latent steps =
+    // 192 env steps), so that the saved action critics have been trained.
+    cc.stop_after_evals = Some(3);
+    run(&cc).unwrap();
+    cc.stop_after_evals = None;
+    let resumed = run(&cc).unwrap();
+    assert_eq!((numbers(&a.rows), a.params_hash), (numbers(&resumed.rows), resumed.params_hash), "resumed");
+
+    // A plain run's checkpoint is not resumed as a noise-aliased one.
+    let mut cp = tiny(method, &plain_dir);
+    cp.steps = 512;
+    cp.noise_aliased = true;
+    assert!(run(&cp).is_err());
+    for d in [a_dir, b_dir, c_dir, plain_dir] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}

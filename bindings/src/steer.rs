@@ -11,7 +11,7 @@ use crate::errors::to_py;
 /// Train one steering agent in Rust (see `python -m equigym.steer run --help`); returns a dict
 /// with the run directory, the log rows, step counts, seconds and a hash of the final weights.
 #[pyfunction]
-#[pyo3(signature = (method, task, seed, steps, out, *, threads=1, preset="cpu", joint_limits=true, controller=None, eval_every=2000, eval_episodes=50, policy=None, ent_init=None, horizon=None, terminate_on_success=false, progress=false, stop_after_evals=None))]
+#[pyo3(signature = (method, task, seed, steps, out, *, threads=1, preset="cpu", joint_limits=true, controller=None, eval_every=2000, eval_episodes=50, policy=None, ent_init=None, horizon=None, terminate_on_success=false, noise_aliased=false, target_entropy=None, progress=false, stop_after_evals=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn steer_run<'py>(
     py: Python<'py>,
@@ -30,6 +30,8 @@ pub fn steer_run<'py>(
     ent_init: Option<f64>,
     horizon: Option<usize>,
     terminate_on_success: bool,
+    noise_aliased: bool,
+    target_entropy: Option<f64>,
     progress: bool,
     stop_after_evals: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
@@ -53,6 +55,8 @@ pub fn steer_run<'py>(
     cfg.ent_init = ent_init;
     cfg.horizon = horizon;
     cfg.terminate_on_success = terminate_on_success;
+    cfg.noise_aliased = noise_aliased;
+    cfg.target_entropy = target_entropy;
     cfg.progress = progress;
     cfg.stop_after_evals = stop_after_evals;
     let s = py.detach(|| run(&cfg)).map_err(to_py)?;

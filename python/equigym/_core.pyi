@@ -319,6 +319,8 @@ def steer_run(
     ent_init: float | None = None,
     horizon: int | None = None,
     terminate_on_success: bool = False,
+    noise_aliased: bool = False,
+    target_entropy: float | None = None,
     progress: bool = False,
     stop_after_evals: int | None = None,
 ) -> dict[str, Any]: ...

@@ -61,6 +61,8 @@ def run(
     ent_init: float | None = None,
     horizon: int | None = None,
     terminate_on_success: bool = False,
+    noise_aliased: bool = False,
+    target_entropy: float | None = None,
     progress: bool = True,
 ) -> dict[str, Any]:
     """One Rust steering run (see the module docs); returns its summary (``run_dir``, ``rows``,
@@ -82,6 +84,8 @@ def run(
         ent_init=ent_init,
         horizon=horizon,
         terminate_on_success=terminate_on_success,
+        noise_aliased=noise_aliased,
+        target_entropy=target_entropy,
         progress=progress,
     )
 
@@ -112,6 +116,8 @@ def _trainable(config: dict[str, Any]) -> None:
                 policy=c["policy"],
                 ent_init=c["ent_init"],
                 terminate_on_success=c.get("terminate_on_success", False),
+                noise_aliased=c.get("noise_aliased", False),
+                target_entropy=c.get("target_entropy"),
                 progress=False,
             )
             last = s["rows"][-1] if s["rows"] else (0, float("nan"), float("nan"), 0.0)
@@ -178,6 +184,8 @@ def _write_sweep_record(path: Path, invocations: list[dict[str, Any]], out: Path
 
 
 def sweep(a: argparse.Namespace) -> None:
+    if (a.noise_aliased or a.target_entropy is not None) and a.sb3:
+        raise SystemExit("--noise-aliased and --target-entropy are Rust-agent options; drop --sb3 or them")
     try:
         import ray
         from ray import tune
@@ -197,6 +205,8 @@ def sweep(a: argparse.Namespace) -> None:
         "policy": a.policy,
         "ent_init": a.ent_init,
         "terminate_on_success": a.terminate_on_success,
+        "noise_aliased": a.noise_aliased,
+        "target_entropy": a.target_entropy,
         "out_root": str(out),
     }
 
@@ -263,14 +273,45 @@ _DIAGNOSTICS = (
 )
 
 
+FINAL_EVALUATIONS = 3
+
+
+def summarize(log: list[dict[str, str]], train: dict[str, dict[str, str]]) -> dict[str, float]:
+    """A run's headline figures from its evaluations: ``untrained`` (the first evaluation, before
+    any gradient step: the untrained actor), ``peak`` (the best evaluation once training has
+    started, i.e. once the entropy coefficient in ``train.csv`` has left its initial value; a
+    peak before that is the warm-up's, not a learned one) and ``final`` (the mean of the last
+    ``FINAL_EVALUATIONS`` evaluations)."""
+    rates = [float(r["success_rate"]) for r in log]
+    alpha0 = train.get(log[0]["env_steps"], {}).get("alpha") if log else None
+    trained = [
+        float(r["success_rate"])
+        for r in log
+        if alpha0 is not None and train.get(r["env_steps"], {}).get("alpha") not in (None, alpha0)
+    ]
+    last = rates[-FINAL_EVALUATIONS:]
+    return {
+        "untrained": rates[0] if rates else float("nan"),
+        "peak": max(trained) if trained else float("nan"),
+        "final": sum(last) / len(last) if last else float("nan"),
+    }
+
+
 def diagnose(runs: list[str], out: str | None = None) -> str:
-    """One Markdown table per run directory: each evaluation (``log.csv``) beside the learner's
-    state at that point (``train.csv``: what the Rust agents and ``baselines.steer`` record)."""
+    """A summary of every run (untrained actor, peak once training started, final = mean of
+    the last three evaluations; the options in ``run.json``), then one Markdown table per run
+    directory: each evaluation (``log.csv``) beside the learner's state at that point
+    (``train.csv``: what the Rust agents and ``baselines.steer`` record)."""
     import csv
 
     def cell(v: str | None, fmt: str) -> str:
         return "" if v in (None, "", "nan") else format(float(v), fmt)
 
+    options = ("terminate_on_success", "noise_aliased", "target_entropy")
+    summary = [
+        "| run | method | options | untrained actor | peak after training starts | final (last 3) |",
+        "|---|---|---|---:|---:|---:|",
+    ]
     lines: list[str] = []
     for d in map(Path, runs):
         with open(d / "log.csv", newline="") as f:
@@ -279,6 +320,13 @@ def diagnose(runs: list[str], out: str | None = None) -> str:
         if (d / "train.csv").exists():
             with open(d / "train.csv", newline="") as f:
                 train = {r["env_steps"]: r for r in csv.DictReader(f)}
+        meta = json.loads((d / "run.json").read_text()) if (d / "run.json").exists() else {}
+        opts = ", ".join(f"{k}={meta[k]}" if k == "target_entropy" else k for k in options if k in meta) or "-"
+        s = summarize(log, train)
+        summary.append(
+            f"| `{d}` | {meta.get('method', '')} | {opts} | "
+            f"{cell(str(s['untrained']), '.2f')} | {cell(str(s['peak']), '.2f')} | {cell(str(s['final']), '.3f')} |"
+        )
         lines += [f"`{d}`", "", "| env steps | success | mean Q | " + " | ".join(h for _, h, _ in _DIAGNOSTICS) + " |"]
         lines.append("|" + "---:|" * (3 + len(_DIAGNOSTICS)))
         for r in log:
@@ -287,7 +335,7 @@ def diagnose(runs: list[str], out: str | None = None) -> str:
             cells += [cell(t.get(k), fmt) for k, _, fmt in _DIAGNOSTICS]
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
-    text = "\n".join(lines)
+    text = "\n".join(summary + [""] + lines)
     if out:
         Path(out).write_text(text)
     return text
@@ -335,6 +383,17 @@ def main(argv: list[str] | None = None) -> None:
             help="end training episodes at the first successful latent step (evaluation unchanged)",
         )
         s.add_argument(
+            "--noise-aliased",
+            action="store_true",
+            help="DSRL-NA: an action-space critic trained by TD, the noise critic distilled from it (Rust agents)",
+        )
+        s.add_argument(
+            "--target-entropy",
+            type=float,
+            default=None,
+            help="the actor's target entropy (default: DSRL's 0; Rust agents)",
+        )
+        s.add_argument(
             "--ent-init", type=float, default=None, help="initial entropy coefficient (default: the preset's)"
         )
     r = sub.add_parser("report")
@@ -368,6 +427,8 @@ def main(argv: list[str] | None = None) -> None:
             ent_init=a.ent_init,
             horizon=a.horizon,
             terminate_on_success=a.terminate_on_success,
+            noise_aliased=a.noise_aliased,
+            target_entropy=a.target_entropy,
             progress=not a.quiet,
         )
         print(json.dumps({k: v for k, v in s.items() if k != "rows"}, default=str))

@@ -262,6 +262,19 @@ impl DiffusionPolicy {
         (0..steps).rev().map(|i| i * ratio).collect()
     }
 
+    /// Map absolute action chunks (rows of `action_dim`) to the policy's normalised action
+    /// space, the inverse of the last step of [`DiffusionPolicy::sample`]: (a - offset) / scale.
+    /// The normalisation commutes with the group (x and y share one scale without offset), so
+    /// an invariant critic may read normalised chunks.
+    pub fn normalize_actions(&self, chunks: &mut [f64]) {
+        let ad = self.action_dim();
+        for row in chunks.chunks_exact_mut(ad) {
+            for (k, v) in row.iter_mut().enumerate() {
+                *v = (*v - self.action_offset[k]) / self.action_scale[k];
+            }
+        }
+    }
+
     /// Denoise a batch: `obs` (B x obs_dim) and `latent` (B x action_dim) -> chunks
     /// (B x action_dim, absolute actions), with `steps` deterministic DDIM steps.
     pub fn sample(&self, obs: &[f64], latent: &[f64], steps: usize, out: &mut [f64]) -> Result<()> {

@@ -4,7 +4,7 @@
 //! cargo run --release -p equigym-agents --bin steer -- run --method equi --task lift --seed 0 \
 //!     --steps 16000 --out runs/steer-rust [--threads 1] [--preset cpu|paper] [--no-joint-limits] \
 //!     [--controller joint|cartesian] [--eval-every 2000] [--eval-episodes 50] [--policy FILE] \
-//!     [--ent-init 0.2] [--horizon N] [--terminate-on-success] [--quiet]
+//!     [--ent-init 0.2] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X] [--quiet]
 //! ```
 //! Writes `OUT/<task>/<method>/seed<S>/log.csv` (and run.json, summary.json, checkpoint.bin);
 //! started again with the same arguments it resumes from the checkpoint.
@@ -16,7 +16,7 @@ use equigym_agents::{run, Method, Preset, RunConfig};
 const USAGE: &str =
     "usage: steer run --method {dsrl,equi,approx} --task {lift,stack,square} --seed S --steps N --out DIR \
 [--threads T] [--preset cpu|paper] [--no-joint-limits] [--controller joint|cartesian] [--eval-every N] \
-[--eval-episodes N] [--policy FILE] [--ent-init X] [--horizon N] [--terminate-on-success] [--quiet]";
+[--eval-episodes N] [--policy FILE] [--ent-init X] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X] [--quiet]";
 
 fn parse(args: &[String]) -> Result<RunConfig, String> {
     if args.first().map(String::as_str) != Some("run") {
@@ -30,7 +30,7 @@ fn parse(args: &[String]) -> Result<RunConfig, String> {
     let mut rest: Vec<(String, Option<String>)> = Vec::new();
     let mut it = args[1..].iter();
     while let Some(a) = it.next() {
-        let flag = matches!(a.as_str(), "--no-joint-limits" | "--quiet" | "--terminate-on-success");
+        let flag = matches!(a.as_str(), "--no-joint-limits" | "--quiet" | "--terminate-on-success" | "--noise-aliased");
         let val =
             if flag { None } else { Some(it.next().ok_or_else(|| format!("{a} needs a value\n{USAGE}"))?.clone()) };
         let num = |v: &Option<String>| -> Result<u64, String> {
@@ -72,8 +72,13 @@ fn parse(args: &[String]) -> Result<RunConfig, String> {
                 cfg.ent_init = Some(v.parse::<f64>().map_err(|_| format!("--ent-init takes a number, got '{v}'"))?)
             }
             "--horizon" => cfg.horizon = Some(num()?),
+            "--target-entropy" => {
+                cfg.target_entropy =
+                    Some(v.parse::<f64>().map_err(|_| format!("--target-entropy takes a number, got '{v}'"))?)
+            }
             "--quiet" => cfg.progress = false,
             "--terminate-on-success" => cfg.terminate_on_success = true,
+            "--noise-aliased" => cfg.noise_aliased = true,
             other => return Err(format!("unknown option {other}\n{USAGE}")),
         }
     }
