@@ -266,3 +266,20 @@ def test_sb3_adapter_runs_latent_envs(tiny_policy):
         obs, rewards, dones, infos = venv.step(np.zeros((2, 40), dtype=np.float32))
     assert dones.all() and all(i["TimeLimit.truncated"] and i["executed"] == 4 for i in infos)
     assert all(i["terminal_observation"].shape == (22,) for i in infos)
+
+
+def test_demos_can_hold_the_object_after_success(tmp_path):
+    # hold_steps more expert steps after the first success, each demo still successful at its
+    # end (the expert keeps the cube up); 0 keeps the demos as they were.
+    import h5py
+
+    record("lift", 2, tmp_path / "plain.hdf5", progress=False)
+    record("lift", 2, tmp_path / "hold.hdf5", progress=False, hold_steps=7)
+    with h5py.File(tmp_path / "plain.hdf5") as p, h5py.File(tmp_path / "hold.hdf5") as h:
+        for k in ("demo_0", "demo_1"):
+            assert h["data"][k].attrs["num_samples"] == p["data"][k].attrs["num_samples"] + 7
+            assert h["data"][k].attrs["success"] and h["data"][k]["rewards"][-1] == 1.0
+            n = p["data"][k].attrs["num_samples"]
+            assert (h["data"][k]["actions"][:n] == p["data"][k]["actions"][:]).all()
+    with pytest.raises(ValueError, match="hold_steps"):
+        record("lift", 1, tmp_path / "bad.hdf5", progress=False, hold_steps=-1)

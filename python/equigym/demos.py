@@ -42,12 +42,21 @@ def record(
     keep_failures: bool = False,
     max_attempts: int | None = None,
     progress: bool = True,
+    hold_steps: int = 0,
 ) -> dict[str, Any]:
     """Record ``episodes`` demonstrations (successful ones unless ``keep_failures``).
 
     Seeds ``seed, seed + 1, ...`` are tried until enough demos are kept (at most
     ``max_attempts``, default 3 x episodes). Returns a summary dict.
+
+    An episode ends at its first successful step, or ``hold_steps`` expert steps after it (the
+    expert keeps the object where it lifted it), so that a policy trained on the demos has seen
+    what to do once the task is done: without them the policy leaves its data at success and
+    drops what it lifted (docs/steering.md, "Steerability"). A demo counts as successful if it
+    still succeeds at its last step.
     """
+    if hold_steps < 0:
+        raise ValueError(f"hold_steps must be >= 0, got {hold_steps}")
     h5py = _h5py()
     env = _core.Env(task, variant=variant)
     expert = _core.Expert(task, position_noise=position_noise, yaw_noise=yaw_noise)
@@ -75,12 +84,17 @@ def record(
             obs = [env.reset(ep_seed)]
             expert.reset(env, ep_seed)
             actions, rewards, success = [], [], False
+            since_success = None
             for _ in range(env.horizon):
                 a = expert.act(env)
                 o, r, _, truncated, info = env.step(a)
                 actions.append(a)
                 rewards.append(r)
-                if info["success"] or truncated:
+                if info["success"] and since_success is None:
+                    since_success = 0
+                elif since_success is not None:
+                    since_success += 1
+                if (since_success is not None and since_success >= hold_steps) or truncated:
                     success = bool(info["success"])
                     break
                 obs.append(o)
@@ -151,6 +165,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--yaw-noise", type=float, default=0.0)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--keep-failures", action="store_true")
+    p.add_argument("--hold-steps", type=int, default=0, help="expert steps recorded after the first success")
     a = p.parse_args(argv)
     summary = record(
         a.task,
@@ -161,6 +176,7 @@ def main(argv: list[str] | None = None) -> None:
         yaw_noise=a.yaw_noise,
         seed=a.seed,
         keep_failures=a.keep_failures,
+        hold_steps=a.hold_steps,
     )
     print(json.dumps(summary))
 

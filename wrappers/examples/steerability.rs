@@ -128,13 +128,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         };
         timed("phase policies", || write(&dir.join("policies.json"), &phase_policies(&cfg, &make_env)?))?;
     }
+    let policy_arg = args.policy.as_ref().map_or(String::new(), |p| format!(" --policy {}", p.display()));
     let command = format!(
-        "cargo run --release -p equigym-wrappers --example steerability -- --task {} --controller {} --out {}",
+        "cargo run --release -p equigym-wrappers --example steerability -- --task {} --controller {} --out {}{policy_arg}",
         args.task,
         args.controller,
         args.out.display()
     );
-    std::fs::write(dir.join("report.md"), report(&dir, &args.task, &args.controller, &command)?)?;
+    let which = args.policy.as_ref().map_or(format!("the shipped {} EDP", args.task), |p| format!("`{}`", p.display()));
+    std::fs::write(dir.join("report.md"), report(&dir, &which, &args.controller, &command)?)?;
     println!("{}", dir.join("report.md").display());
     Ok(())
 }
@@ -169,9 +171,9 @@ fn opt(x: Option<f64>, digits: usize) -> String {
     x.map_or("-".into(), |v| format!("{v:.digits$}"))
 }
 
-fn report(dir: &Path, task: &str, controller: &str, command: &str) -> Result<String, Box<dyn std::error::Error>> {
+fn report(dir: &Path, policy: &str, controller: &str, command: &str) -> Result<String, Box<dyn std::error::Error>> {
     let mut md = format!(
-        "# Steerability of the shipped {task} EDP ({controller} controller)\n\n\
+        "# Steerability of {policy} ({controller} controller)\n\n\
          Made by `{command}` (module `equigym_wrappers::steerability`; rates with Wilson 95 % intervals).\n"
     );
     if let Some(b) = read::<BaseReport>(&dir.join("base.json"))? {
