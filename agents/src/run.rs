@@ -44,9 +44,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{io_err, Error, Result};
 use crate::models::{Arch, Method, Models, GROUP_ORDER};
+use crate::net::Net;
 use crate::replay::{Batch, Replay, DEFAULT_CAPACITY};
 use crate::rng::{Rng, Stream};
-use crate::sac::{normals, Diagnostics, Sac, SacConfig, StepStats};
+use crate::sac::{normals, Diagnostics, Sac, SacConfig};
 
 /// Learning rate, Polyak rate and target entropy (DSRL's).
 pub const LEARNING_RATE: f64 = 3e-4;
@@ -402,6 +403,14 @@ fn decode_normalized(policy: &DiffusionPolicy, obs: &[f32], w: &[f32], rows: usi
     out.extend(c.iter().map(|v| *v as f32));
 }
 
+/// Checkpointed parameters into twin nets (sizes already checked), re-expanded.
+fn load_twins(nets: &mut [Net<f32>; 2], params: [Vec<f32>; 2]) {
+    for (n, p) in nets.iter_mut().zip(params) {
+        n.params = p;
+        n.expand();
+    }
+}
+
 /// FNV-1a over f32 bits.
 fn hash_params<'a>(vs: impl IntoIterator<Item = &'a [f32]>) -> u64 {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
@@ -583,13 +592,7 @@ impl Runner {
                     let mut decode = |obs: &[f32], w: &[f32], rows: usize, out: &mut Vec<f32>| {
                         decode_normalized(policy, obs, w, rows, out)
                     };
-                    let s =
-                        self.sac.train_step_aliased(batch, &mut decode, DEFAULT_LATENT_BOUND, &mut self.streams.train);
-                    StepStats {
-                        critic_loss: s.action_critic_loss + s.distill_loss,
-                        actor_loss: s.actor_loss,
-                        ..Default::default()
-                    }
+                    self.sac.train_step_aliased(batch, &mut decode, DEFAULT_LATENT_BOUND, &mut self.streams.train)
                 } else {
                     self.sac.train_step(batch, &mut self.streams.train)
                 };
@@ -715,10 +718,19 @@ impl Runner {
                 Err(bad(format!("{name} has {got} parameters, expected {want}")))
             }
         };
+        let fit_twins = |name: &str, saved: &[Vec<f32>; 2], nets: &[Net<f32>; 2]| {
+            saved.iter().zip(nets).try_for_each(|(s, n)| fit(name, s.len(), n.num_params()))
+        };
         fit("actor", c.actor.len(), self.sac.actor.num_params())?;
-        for k in 0..2 {
-            fit("critic", c.critics[k].len(), self.sac.critics[k].num_params())?;
-            fit("target critic", c.targets[k].len(), self.sac.targets[k].num_params())?;
+        fit_twins("critic", &c.critics, &self.sac.critics)?;
+        fit_twins("target critic", &c.targets, &self.sac.targets)?;
+        match (&self.sac.aliased, &c.action_critics) {
+            (Some(na), Some(s)) => {
+                fit_twins("action critic", &s.critics, &na.critics)?;
+                fit_twins("action target", &s.targets, &na.targets)?;
+            }
+            (None, None) => {}
+            _ => return Err(bad("action critics saved for a run without noise aliasing, or missing".into())),
         }
         if c.envs.len() != self.envs.len() {
             return Err(bad(format!("{} environments saved, {} needed", c.envs.len(), self.envs.len())));
@@ -727,15 +739,13 @@ impl Runner {
             e.env_mut().set_state(s)?;
         }
         self.sac.actor.params = c.actor;
-        let [c0, c1] = c.critics;
-        let [t0, t1] = c.targets;
-        self.sac.critics[0].params = c0;
-        self.sac.critics[1].params = c1;
-        self.sac.targets[0].params = t0;
-        self.sac.targets[1].params = t1;
         self.sac.actor.expand();
-        for n in self.sac.critics.iter_mut().chain(self.sac.targets.iter_mut()) {
-            n.expand();
+        load_twins(&mut self.sac.critics, c.critics);
+        load_twins(&mut self.sac.targets, c.targets);
+        if let (Some(na), Some(s)) = (self.sac.aliased.as_mut(), c.action_critics) {
+            load_twins(&mut na.critics, s.critics);
+            load_twins(&mut na.targets, s.targets);
+            na.opt = s.opt;
         }
         self.sac.log_alpha = c.log_alpha;
         self.sac.opt_actor = c.opt_actor;
@@ -749,26 +759,6 @@ impl Runner {
         self.elapsed = c.elapsed;
         self.rows = c.rows;
         self.diagnostics = c.diagnostics;
-        match (self.sac.aliased.as_mut(), c.action_critics) {
-            (Some(na), Some(s)) => {
-                for k in 0..2 {
-                    fit("action critic", s.critics[k].len(), na.critics[k].num_params())?;
-                    fit("action target", s.targets[k].len(), na.targets[k].num_params())?;
-                }
-                let [c0, c1] = s.critics;
-                let [t0, t1] = s.targets;
-                na.critics[0].params = c0;
-                na.critics[1].params = c1;
-                na.targets[0].params = t0;
-                na.targets[1].params = t1;
-                for n in na.critics.iter_mut().chain(na.targets.iter_mut()) {
-                    n.expand();
-                }
-                na.opt = s.opt;
-            }
-            (None, None) => {}
-            _ => return Err(bad("action critics saved for a run without noise aliasing, or missing".into())),
-        }
         Ok(())
     }
 

@@ -175,18 +175,47 @@ pub fn soft_target<T: Real>(
     let (b, ad) = (batch.rows, head.dim);
     let od = batch.obs.len() / b.max(1);
     head.sample(actor, &batch.next_obs, b, eps, s2);
-    concat_rows(&batch.next_obs, od, &s2.a, ad, b, &mut buf.x);
-    let (tape, next_q) = (&mut buf.tapes[0], &mut buf.next_q);
-    next_q.clear();
-    next_q.resize(b, T::ZERO);
-    for (k, t) in targets.iter().enumerate() {
-        t.forward(&buf.x, b, tape);
-        for (q, v) in next_q.iter_mut().zip(tape.output()) {
-            *q = if k == 0 { *v } else { q.min(*v) };
-        }
-    }
+    min_over(targets, &batch.next_obs, od, &s2.a, ad, b, &mut buf.x, &mut buf.tapes[0], &mut buf.next_q);
+    soft_values(batch, gamma, &buf.next_q, alpha, &s2.logp, y);
+}
+
+/// `y_r = r_r + gamma (1 - terminated_r) (next_q_r - alpha log pi_r)`, into `y`.
+fn soft_values<T: Real>(batch: &Batch<T>, gamma: T, next_q: &[T], alpha: T, logp: &[T], y: &mut Vec<T>) {
     y.clear();
-    y.extend((0..b).map(|r| batch.reward[r] + (T::ONE - batch.done[r]) * gamma * (next_q[r] - alpha * s2.logp[r])));
+    y.extend(
+        (0..batch.rows).map(|r| batch.reward[r] + (T::ONE - batch.done[r]) * gamma * (next_q[r] - alpha * logp[r])),
+    );
+}
+
+/// One Adam step of each twin critic on `0.5 mean (Q_k(x) - y)^2`; returns the sum of the two
+/// losses (SB3's critic loss). `grads` and `buf` are reused buffers.
+fn fit_twins<T: Real>(
+    critics: &mut [Net<T>; 2],
+    opts: &mut [Adam<T>; 2],
+    x: &[T],
+    y: &[T],
+    grads: &mut Vec<T>,
+    buf: &mut Buffers<T>,
+) -> f64 {
+    let mut loss = 0.0;
+    for (c, opt) in critics.iter_mut().zip(opts.iter_mut()) {
+        grads.clear();
+        grads.resize(c.num_params(), T::ZERO);
+        loss += critic_loss_grad(c, x, y, grads, buf);
+        opt.update(&mut c.params, grads);
+        c.expand();
+    }
+    loss
+}
+
+/// One Adam step of the entropy coefficient; returns `alpha` before the step and the loss.
+fn step_alpha<T: Real>(log_alpha: &mut T, opt: &mut Adam<T>, logp: &[T], target_entropy: f64) -> (T, f64) {
+    let alpha = log_alpha.exp();
+    let (loss, grad) = alpha_loss_grad(*log_alpha, logp, target_entropy);
+    let mut la = [*log_alpha];
+    opt.update(&mut la, &[grad]);
+    *log_alpha = la[0];
+    (alpha, loss)
 }
 
 /// One critic's loss `0.5 mean_r (Q(x_r) - y_r)^2` (the SB3 critic loss is the sum over the
@@ -287,15 +316,6 @@ impl<T: Real> ActionCritics<T> {
 /// normalised action chunks (rows x latent dim), for the noise-aliased step.
 pub type ChunkDecoder<'a, T> = dyn FnMut(&[T], &[T], usize, &mut Vec<T>) + 'a;
 
-/// What one noise-aliased gradient step reports.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct AliasedStats {
-    pub action_critic_loss: f64,
-    pub distill_loss: f64,
-    pub actor_loss: f64,
-    pub alpha: f64,
-}
-
 /// The SAC learner: networks, targets, optimisers, entropy coefficient.
 pub struct Sac<T> {
     pub config: SacConfig,
@@ -323,6 +343,9 @@ struct Scratch<T> {
     grads: Vec<T>,
     eps: Vec<T>,
     buf: Buffers<T>,
+    /// The noise-aliased step's decoded chunks and critic values.
+    chunk: Vec<T>,
+    q: Vec<T>,
 }
 
 /// What one gradient step reports (for tests and logs).
@@ -365,7 +388,7 @@ pub fn concat_rows<T: Real>(obs: &[T], od: usize, act: &[T], ad: usize, rows: us
     }
 }
 
-/// min_k net_k(obs, act) per row, for twin nets (`x` and `tape` are reused buffers).
+/// min_k net_k(obs, act) per row of twin nets, into `q` (`x` and `tape` are reused buffers).
 #[allow(clippy::too_many_arguments)]
 fn min_over<T: Real>(
     nets: &[Net<T>; 2],
@@ -376,16 +399,17 @@ fn min_over<T: Real>(
     rows: usize,
     x: &mut Vec<T>,
     tape: &mut Tape<T>,
-) -> Vec<T> {
+    q: &mut Vec<T>,
+) {
     concat_rows(obs, od, act, ad, rows, x);
-    let mut q = vec![T::ZERO; rows];
+    q.clear();
+    q.resize(rows, T::ZERO);
     for (k, n) in nets.iter().enumerate() {
         n.forward(x, rows, tape);
         for (qi, v) in q.iter_mut().zip(tape.output()) {
             *qi = if k == 0 { *v } else { qi.min(*v) };
         }
     }
-    q
 }
 
 /// Targets `Q' <- (1 - tau) Q' + tau Q`.
@@ -437,23 +461,18 @@ impl<T: Real> Sac<T> {
 
     /// One noise-aliased gradient step (see the module docs): `batch.chunk` holds the executed
     /// chunks, `decode` runs the diffusion policy; `rng` is the training stream, which also draws
-    /// the distillation noise. A learner built without action critics does a plain step.
+    /// the distillation noise. The reported critic loss is the action critics' plus the
+    /// distillation's. A learner built without action critics does a plain step.
     pub fn train_step_aliased(
         &mut self,
         batch: &Batch<T>,
         decode: &mut ChunkDecoder<'_, T>,
         bound: f64,
         rng: &mut Rng,
-    ) -> AliasedStats {
+    ) -> StepStats {
         let (od, ad, b) = (self.obs_dim, self.head.dim, batch.rows);
         let Some(na) = self.aliased.as_mut() else {
-            let s = self.train_step(batch, rng);
-            return AliasedStats {
-                action_critic_loss: s.critic_loss,
-                distill_loss: 0.0,
-                actor_loss: s.actor_loss,
-                alpha: s.alpha,
-            };
+            return self.train_step(batch, rng);
         };
         let sc = &mut self.scratch;
         // 1. w ~ pi(.|s)
@@ -461,54 +480,29 @@ impl<T: Real> Sac<T> {
         normals(rng, &mut sc.eps);
         self.head.sample(&self.actor, &batch.obs, b, &sc.eps, &mut sc.s1);
         // 2. entropy coefficient
-        let alpha = self.log_alpha.exp();
-        let (_, g_alpha) = alpha_loss_grad(self.log_alpha, &sc.s1.logp, self.config.target_entropy);
-        let mut la = [self.log_alpha];
-        self.opt_alpha.update(&mut la, &[g_alpha]);
-        self.log_alpha = la[0];
+        let (alpha, alpha_loss) =
+            step_alpha(&mut self.log_alpha, &mut self.opt_alpha, &sc.s1.logp, self.config.target_entropy);
         // 3. target through the action critics' targets at the decoded next chunk
         normals(rng, &mut sc.eps);
         self.head.sample(&self.actor, &batch.next_obs, b, &sc.eps, &mut sc.s2);
-        let mut next_chunk = std::mem::take(&mut sc.grads);
-        decode(&batch.next_obs, &sc.s2.a, b, &mut next_chunk);
-        let next_q = min_over(&na.targets, &batch.next_obs, od, &next_chunk, ad, b, &mut sc.x, &mut sc.tape);
-        let gamma = T::from_f64(self.config.gamma);
-        sc.y.clear();
-        sc.y.extend(
-            (0..b).map(|r| batch.reward[r] + (T::ONE - batch.done[r]) * gamma * (next_q[r] - alpha * sc.s2.logp[r])),
-        );
+        decode(&batch.next_obs, &sc.s2.a, b, &mut sc.chunk);
+        min_over(&na.targets, &batch.next_obs, od, &sc.chunk, ad, b, &mut sc.x, &mut sc.tape, &mut sc.q);
+        soft_values(batch, T::from_f64(self.config.gamma), &sc.q, alpha, &sc.s2.logp, &mut sc.y);
         // 4. action critics at the executed chunks
         concat_rows(&batch.obs, od, &batch.chunk, ad, b, &mut sc.x);
-        let mut action_critic_loss = 0.0;
-        for k in 0..2 {
-            let c = &mut na.critics[k];
-            next_chunk.clear();
-            next_chunk.resize(c.num_params(), T::ZERO);
-            action_critic_loss += critic_loss_grad(c, &sc.x, &sc.y, &mut next_chunk, &mut sc.buf);
-            na.opt[k].update(&mut c.params, &next_chunk);
-            c.expand();
-        }
+        let mut critic_loss = fit_twins(&mut na.critics, &mut na.opt, &sc.x, &sc.y, &mut sc.grads, &mut sc.buf);
         // 5. distil the noise critics from the updated action critics over w ~ N(0, I) in the box
         normals(rng, &mut sc.eps);
         for e in sc.eps.iter_mut() {
             *e = T::from_f64(e.to_f64().clamp(-bound, bound) / bound);
         }
-        let mut chunk = Vec::new();
-        decode(&batch.obs, &sc.eps, b, &mut chunk);
-        let q = min_over(&na.critics, &batch.obs, od, &chunk, ad, b, &mut sc.x, &mut sc.tape);
+        decode(&batch.obs, &sc.eps, b, &mut sc.chunk);
+        min_over(&na.critics, &batch.obs, od, &sc.chunk, ad, b, &mut sc.x, &mut sc.tape, &mut sc.q);
         concat_rows(&batch.obs, od, &sc.eps, ad, b, &mut sc.x);
-        let mut distill_loss = 0.0;
-        for k in 0..2 {
-            let c = &mut self.critics[k];
-            next_chunk.clear();
-            next_chunk.resize(c.num_params(), T::ZERO);
-            distill_loss += critic_loss_grad(c, &sc.x, &q, &mut next_chunk, &mut sc.buf);
-            self.opt_critics[k].update(&mut c.params, &next_chunk);
-            c.expand();
-        }
+        critic_loss += fit_twins(&mut self.critics, &mut self.opt_critics, &sc.x, &sc.q, &mut sc.grads, &mut sc.buf);
         // 6. actor through the noise critics
-        next_chunk.clear();
-        next_chunk.resize(self.actor.num_params(), T::ZERO);
+        sc.grads.clear();
+        sc.grads.resize(self.actor.num_params(), T::ZERO);
         let actor_loss = actor_loss_grad(
             &self.head,
             &self.actor,
@@ -516,17 +510,16 @@ impl<T: Real> Sac<T> {
             &batch.obs,
             &sc.s1,
             alpha,
-            &mut next_chunk,
+            &mut sc.grads,
             &mut sc.buf,
         );
-        self.opt_actor.update(&mut self.actor.params, &next_chunk);
+        self.opt_actor.update(&mut self.actor.params, &sc.grads);
         self.actor.expand();
-        sc.grads = next_chunk;
         // 7. Polyak for the action critics (and the noise critics' targets, which only the
         //    learner diagnostics read)
         polyak(&mut na.targets, &na.critics, self.config.tau);
         polyak(&mut self.targets, &self.critics, self.config.tau);
-        AliasedStats { action_critic_loss, distill_loss, actor_loss, alpha: alpha.to_f64() }
+        StepStats { critic_loss, actor_loss, alpha: alpha.to_f64(), alpha_loss }
     }
 
     pub fn latent_dim(&self) -> usize {
@@ -542,15 +535,9 @@ impl<T: Real> Sac<T> {
 
     /// min_k Q_k(s, a) per row.
     pub fn min_q(&mut self, obs: &[T], act: &[T], rows: usize) -> Vec<T> {
-        let (od, ad) = (self.obs_dim, self.head.dim);
-        concat_rows(obs, od, act, ad, rows, &mut self.scratch.x);
-        let mut q = vec![T::ZERO; rows];
-        for (k, c) in self.critics.iter().enumerate() {
-            c.forward(&self.scratch.x, rows, &mut self.scratch.tape);
-            for (qi, v) in q.iter_mut().zip(self.scratch.tape.output()) {
-                *qi = if k == 0 { *v } else { qi.min(*v) };
-            }
-        }
+        let (od, ad, sc) = (self.obs_dim, self.head.dim, &mut self.scratch);
+        let mut q = Vec::new();
+        min_over(&self.critics, obs, od, act, ad, rows, &mut sc.x, &mut sc.tape, &mut q);
         q
     }
 
@@ -605,11 +592,8 @@ impl<T: Real> Sac<T> {
         normals(rng, &mut sc.eps);
         self.head.sample(&self.actor, &batch.obs, b, &sc.eps, &mut sc.s1);
         // 2. entropy coefficient
-        let alpha = self.log_alpha.exp();
-        let (alpha_loss, g_alpha) = alpha_loss_grad(self.log_alpha, &sc.s1.logp, self.config.target_entropy);
-        let mut la = [self.log_alpha];
-        self.opt_alpha.update(&mut la, &[g_alpha]);
-        self.log_alpha = la[0];
+        let (alpha, alpha_loss) =
+            step_alpha(&mut self.log_alpha, &mut self.opt_alpha, &sc.s1.logp, self.config.target_entropy);
         // 3. target
         normals(rng, &mut sc.eps);
         soft_target(
@@ -626,15 +610,7 @@ impl<T: Real> Sac<T> {
         );
         // 4. critics
         concat_rows(&batch.obs, od, &batch.act, ad, b, &mut sc.x);
-        let mut critic_loss = 0.0;
-        for k in 0..2 {
-            let c = &mut self.critics[k];
-            sc.grads.clear();
-            sc.grads.resize(c.num_params(), T::ZERO);
-            critic_loss += critic_loss_grad(c, &sc.x, &sc.y, &mut sc.grads, &mut sc.buf);
-            self.opt_critics[k].update(&mut c.params, &sc.grads);
-            c.expand();
-        }
+        let critic_loss = fit_twins(&mut self.critics, &mut self.opt_critics, &sc.x, &sc.y, &mut sc.grads, &mut sc.buf);
         // 5. actor through the updated critics
         sc.grads.clear();
         sc.grads.resize(self.actor.num_params(), T::ZERO);
@@ -652,6 +628,6 @@ impl<T: Real> Sac<T> {
         self.actor.expand();
         // 6. Polyak
         polyak(&mut self.targets, &self.critics, self.config.tau);
-        StepStats { critic_loss, actor_loss, alpha: alpha.to_f64(), alpha_loss: alpha_loss.to_f64() }
+        StepStats { critic_loss, actor_loss, alpha: alpha.to_f64(), alpha_loss }
     }
 }

@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -274,6 +275,8 @@ _DIAGNOSTICS = (
 
 
 FINAL_EVALUATIONS = 3
+# The summary's columns: figure and format.
+FIGURES = (("untrained", ".2f"), ("peak", ".2f"), ("final", ".3f"))
 
 
 def summarize(log: list[dict[str, str]], train: dict[str, dict[str, str]]) -> dict[str, float]:
@@ -325,7 +328,8 @@ def diagnose(runs: list[str], out: str | None = None) -> str:
         s = summarize(log, train)
         summary.append(
             f"| `{d}` | {meta.get('method', '')} | {opts} | "
-            f"{cell(str(s['untrained']), '.2f')} | {cell(str(s['peak']), '.2f')} | {cell(str(s['final']), '.3f')} |"
+            + " | ".join("" if math.isnan(s[k]) else format(s[k], f) for k, f in FIGURES)
+            + " |"
         )
         lines += [f"`{d}`", "", "| env steps | success | mean Q | " + " | ".join(h for _, h, _ in _DIAGNOSTICS) + " |"]
         lines.append("|" + "---:|" * (3 + len(_DIAGNOSTICS)))

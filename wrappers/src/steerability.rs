@@ -263,6 +263,8 @@ pub struct Rollout {
     /// `None` when the rollout stopped at its first success.
     pub outcome: Option<Outcome>,
     pub primitive_steps: usize,
+    /// The episode's primitive step count at its first success.
+    pub first_success: Option<usize>,
 }
 
 /// Run from `start` to the horizon (or to the first success with `stop_at_success`), the
@@ -271,7 +273,19 @@ fn rollout(
     env: &mut LatentEnv,
     start: &Start,
     stop_at_success: bool,
+    noise: impl FnMut(usize, Phase, &mut [f64]),
+) -> Result<Rollout> {
+    rollout_with(env, start, stop_at_success, noise, |_, _, _| Ok(()))
+}
+
+/// [`rollout`], with `before_chunk(env, tracker, k)` called before the noise of every latent
+/// step k is drawn (to measure the state the chunk starts in; it must not change the state).
+fn rollout_with(
+    env: &mut LatentEnv,
+    start: &Start,
+    stop_at_success: bool,
     mut noise: impl FnMut(usize, Phase, &mut [f64]),
+    mut before_chunk: impl FnMut(&mut LatentEnv, &Tracker, usize) -> Result<()>,
 ) -> Result<Rollout> {
     env.env_mut().set_state(&start.state)?;
     let mut tracker = start.tracker.clone();
@@ -279,6 +293,7 @@ fn rollout(
     let mut k = start.latent_step;
     let mut w = vec![0.0; env.latent_dim()];
     loop {
+        before_chunk(env, &tracker, k)?;
         noise(k, phase(env, &tracker), &mut w);
         let chunk = env.decode(&w)?;
         let mut ended = false;
@@ -293,7 +308,12 @@ fn rollout(
                 break;
             }
             if stop_at_success && success_now {
-                return Ok(Rollout { success: true, outcome: None, primitive_steps: steps - start.steps });
+                return Ok(Rollout {
+                    success: true,
+                    outcome: None,
+                    primitive_steps: steps - start.steps,
+                    first_success: tracker.first_success,
+                });
             }
         }
         k += 1;
@@ -303,6 +323,7 @@ fn rollout(
                 success: outcome.is_success(),
                 outcome: Some(outcome),
                 primitive_steps: steps - start.steps,
+                first_success: tracker.first_success,
             });
         }
     }
@@ -697,35 +718,20 @@ pub fn base_rollouts(config: &BaseConfig, make_env: &(dyn Fn() -> Result<LatentE
         let mut spreads = Vec::new();
         // The spread is measured before each chunk, from the state the chunk starts in; the
         // rollout's own noise comes from its own stream, so measuring does not change it.
-        env.env_mut().set_state(&start.state)?;
-        let mut tracker = start.tracker.clone();
-        let mut w = vec![0.0; env.latent_dim()];
-        let mut k = 0;
-        let mut first = None;
-        loop {
-            if spread_here && config.spread_noises > 1 {
-                spreads.push(chunk_spread(env, &tracker, &mut spread_rng, config.spread_noises, k)?);
-            }
-            normals(&mut rng, 1.0, &mut w);
-            let chunk = env.decode(&w)?;
-            let mut ended = None;
-            for a in chunk.chunks_exact(equigym_envs::ACTION_DIM) {
-                let step = env.env_mut().step(a)?;
-                let t = env.env().elapsed_steps();
-                tracker.record(env, step.evaluation.success, t);
-                if step.evaluation.success && first.is_none() {
-                    first = Some(t);
+        let r = rollout_with(
+            env,
+            &start,
+            false,
+            |_, _, w| normals(&mut rng, 1.0, w),
+            |env, tracker, k| {
+                if spread_here && config.spread_noises > 1 {
+                    spreads.push(chunk_spread(env, tracker, &mut spread_rng, config.spread_noises, k)?);
                 }
-                if step.truncated || step.terminated {
-                    ended = Some(step.evaluation.success);
-                    break;
-                }
-            }
-            k += 1;
-            if let Some(success_now) = ended {
-                return Ok((tracker.outcome(env, success_now), first, spreads));
-            }
-        }
+                Ok(())
+            },
+        )?;
+        let outcome = r.outcome.expect("a rollout run to the horizon has an outcome");
+        Ok((outcome, r.first_success, spreads))
     })?;
     let mut per_start = vec![0usize; config.starts];
     let mut counts = vec![0usize; Outcome::ALL.len()];
