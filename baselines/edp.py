@@ -46,6 +46,10 @@ from equigym.demos import load as load_demos
 from equigym.symmetry import Symmetry
 
 FORMAT = "equigym-edp-1"
+#: Line of docs/edp.md after which the text is hand-written and kept by ``report``.
+REPORT_MARKER = "<!-- generated above by `python -m baselines.edp report`; written by hand below -->"
+#: Episodes of the base-success figure (pinned starts ``_core.EVAL_SEED + k``).
+EVAL_EPISODES = 200
 
 
 @dataclass
@@ -465,37 +469,34 @@ class ExportedPolicy:
 
 def evaluate(
     policy_path: str | Path,
-    episodes: int = 100,
+    episodes: int = EVAL_EPISODES,
     seed: int = 0,
-    noise_seed: int = 0,
-    progress: bool = True,
+    scale: float = 1.0,
+    threads: int = 1,
     **env_kwargs: Any,
 ) -> dict[str, Any]:
-    """The base policy's success rate: latent noise w ~ N(0, I) clipped to the bound (the
-    'before steering' figure), over seeded episodes; an episode succeeds if any step does."""
+    """The base policy's success ('before steering') on the pinned evaluation starts
+    (``_core.EVAL_SEED + k``, the starts every steering run is evaluated on; the demos come from
+    seeds below 1000): latent noise N(0, scale^2 I) clipped to the bound, an episode succeeds if
+    any step does. The policy's own reset variant is used. Returns ``_core.evaluate_base``'s
+    dict (successes, episodes, success_rate, Wilson 95 % ``low`` / ``high``, per-episode
+    ``outcomes``)."""
+    from safetensors import safe_open
+
     from equigym import _core
 
-    policy = _core.DiffusionPolicy(str(policy_path))
-    env = _core.LatentEnv(policy.task, policy, **env_kwargs)
-    rng = np.random.default_rng(noise_seed)
-    wins = 0
-    try:
-        from tqdm import trange
+    with safe_open(str(policy_path), "np") as f:
+        meta = f.metadata()
+    task = meta["task"]
+    env_kwargs.setdefault("variant", meta.get("variant") or None)
+    return _core.evaluate_base(
+        task, policy=str(policy_path), episodes=episodes, seed=seed, scale=scale, threads=threads, **env_kwargs
+    )
 
-        it = trange(episodes, desc=f"eval {policy.task}", disable=not progress)
-    except ImportError:  # pragma: no cover
-        it = range(episodes)
-    for k in it:
-        env.reset(seed + k)
-        success = False
-        while True:
-            w = np.clip(rng.standard_normal(env.latent_dim), -env.bound, env.bound)
-            _, _, term, trunc, info = env.step(w)
-            success |= info["success"]
-            if success or term or trunc:
-                break
-        wins += success
-    return {"task": policy.task, "episodes": episodes, "successes": int(wins), "success_rate": wins / episodes}
+
+def format_rate(res: dict[str, Any]) -> str:
+    """``k/n = p [low, high]`` (Wilson 95 %)."""
+    return f"{res['successes']}/{res['episodes']} = {res['success_rate']:.3f} [{res['low']:.3f}, {res['high']:.3f}]"
 
 
 def benchmark(
@@ -526,7 +527,13 @@ def benchmark(
     return rows
 
 
-def report(out: str | Path, episodes: int = 100, seconds: float = 2.0) -> str:
+def _eval_seed() -> int:
+    from equigym import _core
+
+    return int(_core.EVAL_SEED)
+
+
+def report(out: str | Path, episodes: int = EVAL_EPISODES, seconds: float = 2.0, threads: int = 1) -> str:
     """Evaluate every shipped policy (assets/edp/<task>.safetensors) and benchmark the runtime;
     write a Markdown table to ``out`` and return it."""
     import platform
@@ -541,7 +548,9 @@ def report(out: str | Path, episodes: int = 100, seconds: float = 2.0) -> str:
         f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs at the start: timings on a busy machine are low).",
         "",
         "Base-policy success ('before steering'): latent noise w ~ N(0, I) clipped to +-1.5, deterministic "
-        f"DDIM with 5 steps, {episodes} seeded episodes, an episode succeeds if any step does.",
+        f"DDIM with 5 steps, on the {episodes} pinned evaluation starts (seeds {_eval_seed()} + k, the starts "
+        "every steering run is evaluated on; the demos are recorded from seeds below 1000), an episode succeeds "
+        "if any step does; Wilson 95 % intervals.",
         "",
         "| task | demos | group | parameters | training steps | final loss | base success |",
         "|---|---:|---|---:|---:|---:|---:|",
@@ -558,10 +567,10 @@ def report(out: str | Path, episodes: int = 100, seconds: float = 2.0) -> str:
             meta = f.metadata()
         cfg = json.loads(meta.get("config", "{}"))
         variant = meta.get("variant") or None
-        res = evaluate(path, episodes, progress=False, **({"variant": variant} if variant else {}))
+        res = evaluate(path, episodes, threads=threads)
         lines.append(
             f"| {task} {variant or ''} | {meta.get('demos', '?')} | {meta.get('group')} | {meta.get('params', '?')} "
-            f"| {cfg.get('steps', '?')} | {float(meta.get('final_loss', 'nan')):.4f} | {res['successes']}/{episodes} = {res['success_rate']:.2f} |"
+            f"| {cfg.get('steps', '?')} | {float(meta.get('final_loss', 'nan')):.4f} | {format_rate(res)} |"
         )
         if not bench_rows:
             bench_rows = benchmark(path, seconds=seconds)
@@ -580,8 +589,11 @@ def report(out: str | Path, episodes: int = 100, seconds: float = 2.0) -> str:
                 f"| {row['batch']} | " + " | ".join(f"{v:,.0f}" for k, v in row.items() if k != "batch") + " |"
             )
     text = "\n".join(lines) + "\n"
-    Path(out).parent.mkdir(parents=True, exist_ok=True)
-    Path(out).write_text(text)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    # What follows the marker is written by hand (how the policies got here) and kept.
+    kept = out.read_text().split(REPORT_MARKER, 1)[1] if out.exists() and REPORT_MARKER in out.read_text() else "\n"
+    out.write_text(text + "\n" + REPORT_MARKER + kept)
     return text
 
 
@@ -599,24 +611,27 @@ def main(argv: list[str] | None = None) -> None:
     t.add_argument("--lr", type=float, default=EDPConfig.lr)
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--fresh", action="store_true", help="ignore a matching <out>.ckpt instead of resuming it")
-    e = sub.add_parser("eval", help="success rate of the base policy (w ~ N(0, I)) in the latent env")
+    e = sub.add_parser("eval", help="base-policy success (w ~ N(0, scale^2 I)) on the pinned evaluation starts")
     e.add_argument("--policy", required=True)
-    e.add_argument("--episodes", type=int, default=100)
-    e.add_argument("--seed", type=int, default=0)
-    e.add_argument("--variant", default=None)
+    e.add_argument("--episodes", type=int, default=EVAL_EPISODES)
+    e.add_argument("--seed", type=int, default=0, help="seed of the noise streams")
+    e.add_argument("--scale", type=float, default=1.0, help="noise scale s (narrow-noise controls: s < 1)")
+    e.add_argument("--threads", type=int, default=1, help="threads (results do not depend on it)")
+    e.add_argument("--controller", choices=("joint", "cartesian"), default=None)
     b = sub.add_parser("bench", help="chunks/s of the Rust runtime vs PyTorch, batch 1 and 256")
     b.add_argument("--policy", required=True)
     b.add_argument("--seconds", type=float, default=2.0)
     r = sub.add_parser("report", help="evaluate and benchmark the shipped policies into a Markdown file")
     r.add_argument("--out", default="docs/edp.md")
-    r.add_argument("--episodes", type=int, default=100)
+    r.add_argument("--episodes", type=int, default=EVAL_EPISODES)
+    r.add_argument("--threads", type=int, default=1, help="evaluation threads (results do not depend on it)")
     a = p.parse_args(argv)
     if a.cmd == "report":
         torch.set_num_threads(1)
-        print(report(a.out, a.episodes))
+        print(report(a.out, a.episodes, threads=a.threads))
     elif a.cmd == "eval":
-        kwargs = {"variant": a.variant} if a.variant else {}
-        print(json.dumps(evaluate(a.policy, a.episodes, a.seed, **kwargs)))
+        res = evaluate(a.policy, a.episodes, a.seed, a.scale, a.threads, controller=a.controller)
+        print(json.dumps({k: v for k, v in res.items() if k != "outcomes"}))
     elif a.cmd == "bench":
         torch.set_num_threads(1)
         for row in benchmark(a.policy, seconds=a.seconds):

@@ -283,3 +283,34 @@ def test_demos_can_hold_the_object_after_success(tmp_path):
             assert (h["data"][k]["actions"][:n] == p["data"][k]["actions"][:]).all()
     with pytest.raises(ValueError, match="hold_steps"):
         record("lift", 1, tmp_path / "bad.hdf5", progress=False, hold_steps=-1)
+
+
+def test_base_evaluation_runs_on_the_pinned_starts_with_wilson_intervals():
+    """``baselines.edp.evaluate`` (the shipped policies' base-success figure) runs the Rust
+    evaluation protocol on the starts EVAL_SEED + k: the same outcomes for any thread count, a
+    Wilson interval around the rate, and each episode as the latent env plays it from its start."""
+    from baselines.edp import evaluate
+    from equigym import _core
+    from equigym.assets import asset_path
+
+    policy = asset_path("edp", "lift.safetensors")
+    res = evaluate(policy, episodes=6, horizon=80)
+    assert res["first_start"] == _core.EVAL_SEED == 10_000
+    assert res["episodes"] == 6 and len(res["outcomes"]) == 6
+    assert res["successes"] == sum(res["outcomes"])
+    assert res["low"] <= res["success_rate"] <= res["high"]
+    assert evaluate(policy, episodes=6, horizon=80, threads=2) == res
+    # Scale 0 is the mean noise: one deterministic rollout per start, replayed here by hand.
+    zero = evaluate(policy, episodes=3, scale=0.0, horizon=80)
+    env = _core.LatentEnv("lift", _core.DiffusionPolicy(str(policy)), horizon=80)
+    for k, outcome in enumerate(zero["outcomes"]):
+        env.reset(_core.EVAL_SEED + k)
+        success = False
+        while True:
+            _, _, term, trunc, info = env.step(np.zeros(env.latent_dim))
+            success |= info["success"]
+            if success or term or trunc:
+                break
+        assert success == outcome, k
+    with pytest.raises(ValueError, match="noise scale"):
+        evaluate(policy, episodes=2, scale=-1.0)

@@ -23,6 +23,7 @@ pub use equigym_nn as nn;
 
 pub mod equi;
 pub mod error;
+pub mod evaluation;
 pub mod fourier;
 pub mod gradcheck;
 pub mod models;
@@ -33,5 +34,6 @@ pub mod run;
 pub mod sac;
 
 pub use error::{Error, Result};
+pub use evaluation::{evaluate_base, BaseEvaluation, EVAL_SEED};
 pub use models::Method;
 pub use run::{run, Preset, RunConfig, RunSummary, TimeSplit};

@@ -15,6 +15,7 @@
 //! | [`Stream::Eval`] | the stochastic actor's noise in evaluation episode `index` |
 //! | [`Stream::Diagnostics`] | replay sample and actor noise of the learner diagnostics at evaluation `index` |
 //! | [`Stream::InitActionCritics`] | initial weights of the noise-aliased agents' action critics (index 1 and 2) |
+//! | [`Stream::BaseEval`] | the base policy's latent noise in evaluation episode `index` ([`crate::evaluation::evaluate_base`]) |
 
 use equigym_envs::rng::{box_muller, box_muller_uniforms};
 use equigym_nn::{ops, Real};
@@ -36,6 +37,7 @@ pub enum Stream {
     Eval = 8,
     Diagnostics = 9,
     InitActionCritics = 10,
+    BaseEval = 11,
 }
 
 /// Domain separator in every key, so that these streams differ from any other ChaCha use.

@@ -43,6 +43,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{io_err, Error, Result};
+use crate::evaluation::run_episodes;
 use crate::models::{Arch, Method, Models, GROUP_ORDER};
 use crate::net::Net;
 use crate::replay::{Batch, Replay, DEFAULT_CAPACITY};
@@ -59,7 +60,6 @@ pub const GAMMA_SQUARE: f64 = 0.999;
 /// Evaluation defaults of `baselines/steer.py`.
 pub const EVAL_EVERY: usize = 2000;
 pub const EVAL_EPISODES: usize = 50;
-pub const EVAL_SEED: u64 = 10_000;
 /// Replay transitions whose mean Q the log reports.
 pub const MEAN_Q_SAMPLE: usize = 256;
 /// Checkpoint format tag.
@@ -162,6 +162,9 @@ pub struct RunConfig {
     pub ent_init: Option<f64>,
     /// Episode length override (control steps); tests use short episodes.
     pub horizon: Option<usize>,
+    /// Reset-distribution variant ("D0", "D1", "D2"; None: the task's default, which is the
+    /// shipped policy's).
+    pub variant: Option<String>,
     /// End training episodes at the first latent step that succeeds (a terminal transition,
     /// then a reset) instead of running them to the horizon as DSRL does. The return then
     /// counts the steps to success, the quantity the evaluation measures, rather than the time
@@ -200,6 +203,7 @@ impl RunConfig {
             policy: None,
             ent_init: None,
             horizon: None,
+            variant: None,
             terminate_on_success: false,
             noise_aliased: false,
             target_entropy: None,
@@ -222,7 +226,7 @@ impl RunConfig {
         self.out.join(task).join(self.method.name()).join(format!("seed{}", self.seed))
     }
 
-    fn policy_path(&self) -> PathBuf {
+    pub(crate) fn policy_path(&self) -> PathBuf {
         self.policy.clone().unwrap_or_else(|| Path::new(DEFAULT_POLICY_DIR).join(format!("{}.safetensors", self.task)))
     }
 
@@ -253,6 +257,9 @@ impl RunConfig {
             .collect::<String>();
         if let Some(t) = self.target_entropy {
             later.push_str(&format!("|target_entropy={t:?}"));
+        }
+        if let Some(v) = &self.variant {
+            later.push_str(&format!("|variant={v}"));
         }
         format!(
             "{}|{}|{}|{:?}|{}|{:?}|{}|{}|{}|{:?}|{:?}",
@@ -438,7 +445,7 @@ fn params_hash(sac: &Sac<f32>) -> u64 {
 }
 
 /// Denoise `latents` (rows x latent dim, scaled box) for `envs` and run the chunks, on `pool`.
-fn step_envs(
+pub(crate) fn step_envs(
     pool: &rayon::ThreadPool,
     envs: &mut [&mut LatentEnv],
     policy: &DiffusionPolicy,
@@ -535,10 +542,6 @@ impl Runner {
         }
     }
 
-    fn make_env(&self) -> Result<LatentEnv> {
-        make_env(&self.cfg, &self.policy)
-    }
-
     fn env_steps(&self) -> u64 {
         self.num_timesteps * self.policy.chunk_len as u64
     }
@@ -612,43 +615,24 @@ impl Runner {
     /// Success rate of the stochastic actor over the evaluation episodes.
     fn evaluate(&mut self) -> Result<f64> {
         let episodes = self.cfg.eval_episodes;
-        while self.eval_envs.len() < episodes {
-            let e = self.make_env()?;
-            self.eval_envs.push(e);
-        }
         let eval_index = self.rows.len() as u64;
         let mut rngs: Vec<Rng> =
             (0..episodes as u64).map(|k| Rng::new(self.cfg.seed, Stream::Eval, (eval_index << 32) | k)).collect();
-        for (k, e) in self.eval_envs.iter_mut().enumerate() {
-            e.reset(EVAL_SEED + k as u64)?;
-        }
-        let mut active: Vec<bool> = vec![true; episodes];
-        let mut wins = 0usize;
-        let (od, ad) = (self.obs_dim, self.sac.latent_dim());
-        while active.iter().any(|a| *a) {
-            let idx: Vec<usize> = (0..episodes).filter(|k| active[*k]).collect();
-            let mut obs = Vec::with_capacity(idx.len() * od);
+        let ad = self.sac.latent_dim();
+        let sac = &mut self.sac;
+        let mut choose = |idx: &[usize], obs: &[f32], out: &mut Vec<f64>| {
             let mut eps = vec![0.0f32; idx.len() * ad];
             for (j, &k) in idx.iter().enumerate() {
-                obs.extend(self.eval_envs[k].env_mut().observe().iter().map(|v| *v as f32));
                 normals(&mut rngs[k], &mut eps[j * ad..(j + 1) * ad]);
             }
-            let a = self.sac.act(&obs, idx.len(), &eps);
-            let latents: Vec<f64> = a.iter().map(|v| *v as f64 * DEFAULT_LATENT_BOUND).collect();
-            let mut refs: Vec<&mut LatentEnv> =
-                self.eval_envs.iter_mut().enumerate().filter(|(k, _)| active[*k]).map(|(_, e)| e).collect();
-            let results = step_envs(&self.pool, &mut refs, &self.policy, &latents)?;
-            for (&k, r) in idx.iter().zip(&results) {
-                self.eval_env_steps += r.executed as u64;
-                if r.success {
-                    wins += 1;
-                }
-                if r.success || r.terminated || r.truncated {
-                    active[k] = false;
-                }
-            }
-        }
-        Ok(wins as f64 / episodes as f64)
+            let a = sac.act(obs, idx.len(), &eps);
+            out.extend(a.iter().map(|v| *v as f64 * DEFAULT_LATENT_BOUND));
+        };
+        let (cfg, policy) = (&self.cfg, &self.policy);
+        let make = || make_env(cfg, policy);
+        let result = run_episodes(&self.pool, &mut self.eval_envs, &make, policy, episodes, &mut choose)?;
+        self.eval_env_steps += result.env_steps;
+        Ok(result.rate())
     }
 
     fn mean_q(&mut self) -> f64 {
@@ -798,6 +782,61 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     std::fs::rename(&tmp, path).map_err(|e| io_err(path, e))
 }
 
+/// `run.json`: what the run is, for reports. Options added later appear only when set, so that
+/// earlier runs' files stay as they were.
+#[derive(Serialize)]
+struct RunMeta<'a> {
+    method: &'a str,
+    task: &'a str,
+    seed: u64,
+    steps: usize,
+    preset: &'a str,
+    joint_limits: bool,
+    agent: &'a str,
+    fields: usize,
+    params_actor: usize,
+    params_critic: usize,
+    policy: String,
+    #[serde(skip_serializing_if = "is_false")]
+    terminate_on_success: bool,
+    #[serde(skip_serializing_if = "is_false")]
+    noise_aliased: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    target_entropy: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    variant: Option<&'a str>,
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
+}
+
+/// JSON on one line with `", "` and `": "` between items (the layout of the committed runs).
+struct SpacedJson;
+
+impl serde_json::ser::Formatter for SpacedJson {
+    fn begin_object_key<W: ?Sized + std::io::Write>(&mut self, w: &mut W, first: bool) -> std::io::Result<()> {
+        if first {
+            Ok(())
+        } else {
+            w.write_all(b", ")
+        }
+    }
+
+    fn begin_object_value<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
+        w.write_all(b": ")
+    }
+}
+
+impl RunMeta<'_> {
+    fn to_json(&self) -> String {
+        let mut out = Vec::new();
+        let mut ser = serde_json::Serializer::with_formatter(&mut out, SpacedJson);
+        self.serialize(&mut ser).expect("a RunMeta always serialises");
+        String::from_utf8(out).expect("serde_json writes UTF-8") + "\n"
+    }
+}
+
 /// A latent environment as the run configures it.
 pub fn make_env(cfg: &RunConfig, policy: &Arc<DiffusionPolicy>) -> Result<LatentEnv> {
     let mut ec = EnvConfig::new(&cfg.task);
@@ -806,6 +845,7 @@ pub fn make_env(cfg: &RunConfig, policy: &Arc<DiffusionPolicy>) -> Result<Latent
         ec.physics.cartesian_control = c;
     }
     ec.horizon = cfg.horizon;
+    ec.task_options.variant = cfg.variant.clone();
     let env = Env::new(ec)?;
     Ok(LatentEnv::new(env, policy.clone(), DEFAULT_LATENT_BOUND, policy.default_ddim_steps)?)
 }
@@ -896,20 +936,24 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
     }
     let (params_actor, params_critic) =
         (r.sac.actor.num_params(), r.sac.critics[0].num_params() + r.sac.critics[1].num_params());
-    let meta = format!(
-        "{{\"method\": \"{}\", \"task\": \"{}\", \"seed\": {}, \"steps\": {}, \"preset\": \"{}\", \"joint_limits\": {}, \"agent\": \"rust\", \"fields\": {}, \"params_actor\": {}, \"params_critic\": {}, \"policy\": \"{}\"}}\n",
-        cfg.method.name(), cfg.task, cfg.seed, cfg.steps, cfg.preset.name, cfg.joint_limits, fields, params_actor, params_critic, cfg.policy_path().display()
-    );
-    // Later options are recorded only when set (earlier runs' run.json stay as they were).
-    let mut meta = meta;
-    for (on, name) in [(cfg.terminate_on_success, "terminate_on_success"), (cfg.noise_aliased, "noise_aliased")] {
-        if on {
-            meta = meta.replacen("}\n", &format!(", \"{name}\": true}}\n"), 1);
-        }
+    let meta = RunMeta {
+        method: cfg.method.name(),
+        task: &cfg.task,
+        seed: cfg.seed,
+        steps: cfg.steps,
+        preset: &cfg.preset.name,
+        joint_limits: cfg.joint_limits,
+        agent: "rust",
+        fields,
+        params_actor,
+        params_critic,
+        policy: cfg.policy_path().display().to_string(),
+        terminate_on_success: cfg.terminate_on_success,
+        noise_aliased: cfg.noise_aliased,
+        target_entropy: cfg.target_entropy,
+        variant: cfg.variant.as_deref(),
     }
-    if let Some(t) = cfg.target_entropy {
-        meta = meta.replacen("}\n", &format!(", \"target_entropy\": {t:?}}}\n"), 1);
-    }
+    .to_json();
     write_atomic(&dir.join("run.json"), meta.as_bytes())?;
     let base_elapsed = r.elapsed;
     let steps_at_start = r.env_steps();
@@ -964,4 +1008,44 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         params_critic,
     };
     Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::RunMeta;
+
+    fn meta(policy: &str) -> RunMeta<'static> {
+        RunMeta {
+            method: "dsrl",
+            task: "lift",
+            seed: 0,
+            steps: 16000,
+            preset: "cpu",
+            joint_limits: true,
+            agent: "rust",
+            fields: 0,
+            params_actor: 15376,
+            params_critic: 25602,
+            policy: policy.into(),
+            terminate_on_success: false,
+            noise_aliased: false,
+            target_entropy: None,
+            variant: None,
+        }
+    }
+
+    /// `run.json` keeps the layout of the committed runs, later options only when set.
+    #[test]
+    fn run_meta_matches_committed_runs() {
+        let plain = meta("python/equigym/shipped/edp/lift.safetensors");
+        assert_eq!(plain.to_json(), include_str!("../../docs/steering/arm3/runs/rust/lift/dsrl/seed0/run.json"));
+        let mut recipe = meta("docs/steering/steerability/lift-edp-training/edp/plain_16k.safetensors");
+        recipe.terminate_on_success = true;
+        recipe.noise_aliased = true;
+        recipe.target_entropy = Some(40.0);
+        assert_eq!(
+            recipe.to_json(),
+            include_str!("../../docs/steering/arm3/recipe/edp16k-na-tos-h40-dsrl-seed0/run.json")
+        );
+    }
 }

@@ -264,6 +264,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(symmetry::measure_symmetry_breaking, m)?)?;
     m.add_function(wrap_pyfunction!(steer::steer_run, m)?)?;
     m.add_function(wrap_pyfunction!(steer::steer_gradcase, m)?)?;
+    m.add_function(wrap_pyfunction!(steer::evaluate_base, m)?)?;
+    m.add("EVAL_SEED", equigym_agents::EVAL_SEED)?;
     m.add("TASK_IDS", TASK_IDS.to_vec())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

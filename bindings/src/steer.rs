@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use equigym_agents::{run, Method, Preset, RunConfig};
+use equigym_agents::{evaluate_base as base_evaluation, run, Method, Preset, RunConfig};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -39,16 +39,7 @@ pub fn steer_run<'py>(
     cfg.threads = threads;
     cfg.preset = Preset::named(preset).map_err(to_py)?;
     cfg.joint_limits = joint_limits;
-    cfg.cartesian = match controller {
-        None => None,
-        Some("joint") => Some(false),
-        Some("cartesian") => Some(true),
-        Some(other) => {
-            return Err(crate::errors::invalid_input(format!(
-                "controller must be 'joint' or 'cartesian', got '{other}'"
-            )))
-        }
-    };
+    cfg.cartesian = parse_controller(controller)?;
     cfg.eval_every = eval_every;
     cfg.eval_episodes = eval_episodes;
     cfg.policy = policy;
@@ -78,6 +69,63 @@ pub fn steer_run<'py>(
     d.set_item("fields", s.fields)?;
     d.set_item("params_actor", s.params_actor)?;
     d.set_item("params_critic", s.params_critic)?;
+    Ok(d)
+}
+
+/// `None` keeps the environment's default controller.
+fn parse_controller(controller: Option<&str>) -> PyResult<Option<bool>> {
+    match controller {
+        None => Ok(None),
+        Some("joint") => Ok(Some(false)),
+        Some("cartesian") => Ok(Some(true)),
+        Some(other) => {
+            Err(crate::errors::invalid_input(format!("controller must be 'joint' or 'cartesian', got '{other}'")))
+        }
+    }
+}
+
+/// The base policy on the pinned evaluation starts (seeds `EVAL_SEED + k`) with latent noise
+/// N(0, scale^2 I) clipped to the bound, as a steering run of the same settings evaluates its
+/// actor (`equigym_agents::evaluation`); `seed` seeds the noise streams. Returns a dict: task,
+/// policy, scale, seed, first_start, successes / episodes / success_rate / low / high (Wilson
+/// 95 %), and `outcomes`, one bool per episode in start order.
+#[pyfunction]
+#[pyo3(signature = (task, *, seed=0, episodes=200, scale=1.0, policy=None, controller=None, joint_limits=true, horizon=None, variant=None, threads=1))]
+#[allow(clippy::too_many_arguments)]
+pub fn evaluate_base<'py>(
+    py: Python<'py>,
+    task: &str,
+    seed: u64,
+    episodes: usize,
+    scale: f64,
+    policy: Option<PathBuf>,
+    controller: Option<&str>,
+    joint_limits: bool,
+    horizon: Option<usize>,
+    variant: Option<String>,
+    threads: usize,
+) -> PyResult<Bound<'py, PyDict>> {
+    let mut cfg = RunConfig::new(Method::Dsrl, task, seed, 0, PathBuf::new()).map_err(to_py)?;
+    cfg.eval_episodes = episodes;
+    cfg.policy = policy;
+    cfg.cartesian = parse_controller(controller)?;
+    cfg.joint_limits = joint_limits;
+    cfg.horizon = horizon;
+    cfg.variant = variant;
+    cfg.threads = threads;
+    let e = py.detach(|| base_evaluation(&cfg, scale)).map_err(to_py)?;
+    let d = PyDict::new(py);
+    d.set_item("task", &e.task)?;
+    d.set_item("policy", &e.policy)?;
+    d.set_item("scale", e.scale)?;
+    d.set_item("seed", e.seed)?;
+    d.set_item("first_start", e.first_start)?;
+    d.set_item("successes", e.rate.successes)?;
+    d.set_item("episodes", e.rate.n)?;
+    d.set_item("success_rate", e.rate.rate)?;
+    d.set_item("low", e.rate.low)?;
+    d.set_item("high", e.rate.high)?;
+    d.set_item("outcomes", e.successes)?;
     Ok(d)
 }
 

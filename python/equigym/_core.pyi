@@ -18,12 +18,17 @@ __all__ = [
     "measure_symmetry_breaking",
     "steer_run",
     "steer_gradcase",
+    "evaluate_base",
+    "EVAL_SEED",
     "TASK_IDS",
     "__version__",
 ]
 
 __version__: str
 TASK_IDS: list[str]
+#: Seed of evaluation episode 0: episode k of every evaluation (steering runs, base policy,
+#: narrow-noise controls) starts from seed ``EVAL_SEED + k``.
+EVAL_SEED: int
 
 # Environment options (``**options`` below) are declared once, in Rust
 # (``equigym_envs::EnvOptions``); ``equigym.envs.OPTIONS_DOC`` documents them.
@@ -327,3 +332,20 @@ def steer_run(
 def steer_gradcase(
     method: Literal["dsrl", "equi", "approx"], task: str = "lift", seed: int = 0, rows: int = 6
 ) -> dict[str, Any]: ...
+def evaluate_base(
+    task: str,
+    *,
+    seed: int = 0,
+    episodes: int = 200,
+    scale: float = 1.0,
+    policy: str | PathLike[str] | None = None,
+    controller: Literal["joint", "cartesian"] | None = None,
+    joint_limits: bool = True,
+    horizon: int | None = None,
+    variant: str | None = None,
+    threads: int = 1,
+) -> dict[str, Any]:
+    """The base policy on the pinned evaluation starts with latent noise N(0, scale^2 I) clipped
+    to the bound, evaluated as a steering run evaluates its actor. Keys: task, policy, scale,
+    seed, first_start, successes, episodes, success_rate, low, high (Wilson 95 %), outcomes
+    (one bool per episode, in start order)."""

@@ -1,0 +1,152 @@
+//! Evaluation on the pinned starts: the one home of the protocol that a run's evaluations (the
+//! stochastic actor) and its control arms (the base policy with latent noise N(0, s^2 I)) share,
+//! so that every method and every control is measured on the same episodes, paired.
+//!
+//! - Episode k of an evaluation is reset with seed [`EVAL_SEED`] + k: the same starts for every
+//!   method, seed and control (the demos are recorded from seeds below 1000, so no evaluation
+//!   start is a training start).
+//! - An episode succeeds if any latent step succeeds, and stops there; otherwise it runs to the
+//!   horizon.
+//! - Episodes run batched on a thread pool; each draws its noise from its own stream, so the
+//!   result depends neither on the batching nor on the thread count.
+//!
+//! The base evaluation ([`evaluate_base`]) takes the run configuration it is the control of: the
+//! same task, policy, controller, joint limits and horizon, and the run's seed for its noise
+//! ([`Stream::BaseEval`], one stream per episode, shared by every scale: common random numbers,
+//! so the scales differ only by the scale).
+
+use std::sync::Arc;
+
+use equigym_wrappers::steerability::Rate;
+use equigym_wrappers::{DiffusionPolicy, LatentEnv};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::rng::{Rng, Stream};
+use crate::run::{make_env, step_envs, RunConfig};
+
+/// Seed of evaluation episode 0; episode k starts from seed `EVAL_SEED + k`.
+pub const EVAL_SEED: u64 = 10_000;
+
+/// Per-episode successes of an evaluation and the primitive env steps it ran.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Episodes {
+    pub successes: Vec<bool>,
+    pub env_steps: u64,
+}
+
+impl Episodes {
+    pub fn rate(&self) -> f64 {
+        self.successes.iter().filter(|s| **s).count() as f64 / self.successes.len().max(1) as f64
+    }
+}
+
+/// Fills the latents of the running episodes: `(active indices, their observations, latents)`.
+pub(crate) type Choose<'a> = dyn FnMut(&[usize], &[f32], &mut Vec<f64>) + 'a;
+
+/// Run `episodes` evaluation episodes in `envs` (grown with `make` as needed). Before every
+/// latent step, `choose(active, obs, latents)` gets the indices of the still-running episodes
+/// and their observations (rows, float32) and fills their latents (rows x latent dim, the
+/// scaled box; clipped to the bound when stepped).
+pub(crate) fn run_episodes(
+    pool: &rayon::ThreadPool,
+    envs: &mut Vec<LatentEnv>,
+    make: &dyn Fn() -> Result<LatentEnv>,
+    policy: &DiffusionPolicy,
+    episodes: usize,
+    choose: &mut Choose<'_>,
+) -> Result<Episodes> {
+    while envs.len() < episodes {
+        envs.push(make()?);
+    }
+    for (k, e) in envs.iter_mut().take(episodes).enumerate() {
+        e.reset(EVAL_SEED + k as u64)?;
+    }
+    let mut active = vec![true; episodes];
+    let mut successes = vec![false; episodes];
+    let mut env_steps = 0u64;
+    let od = policy.obs_dim();
+    let mut latents = Vec::new();
+    while active.iter().any(|a| *a) {
+        let idx: Vec<usize> = (0..episodes).filter(|k| active[*k]).collect();
+        let mut obs = Vec::with_capacity(idx.len() * od);
+        for &k in &idx {
+            obs.extend(envs[k].env_mut().observe().iter().map(|v| *v as f32));
+        }
+        latents.clear();
+        choose(&idx, &obs, &mut latents);
+        let mut refs: Vec<&mut LatentEnv> =
+            envs.iter_mut().take(episodes).enumerate().filter(|(k, _)| active[*k]).map(|(_, e)| e).collect();
+        let results = step_envs(pool, &mut refs, policy, &latents)?;
+        for (&k, r) in idx.iter().zip(&results) {
+            env_steps += r.executed as u64;
+            successes[k] |= r.success;
+            if r.success || r.terminated || r.truncated {
+                active[k] = false;
+            }
+        }
+    }
+    Ok(Episodes { successes, env_steps })
+}
+
+/// The base policy on a run's evaluation starts, with latent noise N(0, scale^2 I) clipped to
+/// the bound (scale 1: the base policy, "before steering"; smaller: a narrow-noise control).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BaseEvaluation {
+    pub task: String,
+    /// The diffusion policy file.
+    pub policy: String,
+    pub scale: f64,
+    /// The noise streams' seed (the run's seed).
+    pub seed: u64,
+    pub first_start: u64,
+    pub rate: Rate,
+    /// Per episode, in start order (for paired comparisons).
+    pub successes: Vec<bool>,
+}
+
+/// Evaluate the base policy of `cfg` (task, policy, controller, joint limits, horizon,
+/// `eval_episodes`, threads) at noise `scale`, as [`crate::run`] evaluates its actor.
+pub fn evaluate_base(cfg: &RunConfig, scale: f64) -> Result<BaseEvaluation> {
+    if !(scale.is_finite() && scale >= 0.0) {
+        return Err(Error::InvalidOption(format!("the noise scale must be finite and >= 0, got {scale}")));
+    }
+    if cfg.eval_episodes == 0 {
+        return Err(Error::InvalidOption("eval_episodes must be >= 1".into()));
+    }
+    if !equigym_envs::tasks::TASK_IDS.contains(&cfg.task.as_str()) {
+        return Err(Error::InvalidOption(format!(
+            "task must be one of {:?}, got '{}'",
+            equigym_envs::tasks::TASK_IDS,
+            cfg.task
+        )));
+    }
+    let path = cfg.policy_path();
+    let policy = Arc::new(DiffusionPolicy::load(&path)?);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(cfg.threads)
+        .thread_name(|i| format!("equigym-eval-{i}"))
+        .build()
+        .map_err(|e| Error::InvalidOption(format!("cannot start {} threads: {e}", cfg.threads)))?;
+    let episodes = cfg.eval_episodes;
+    let latent_dim = policy.action_dim();
+    let mut rngs: Vec<Rng> = (0..episodes as u64).map(|k| Rng::new(cfg.seed, Stream::BaseEval, k)).collect();
+    let mut choose = |idx: &[usize], _obs: &[f32], out: &mut Vec<f64>| {
+        for &k in idx {
+            out.extend((0..latent_dim).map(|_| scale * rngs[k].normal()));
+        }
+    };
+    let make = || make_env(cfg, &policy);
+    let mut envs = Vec::with_capacity(episodes);
+    let result = run_episodes(&pool, &mut envs, &make, &policy, episodes, &mut choose)?;
+    let wins = result.successes.iter().filter(|s| **s).count();
+    Ok(BaseEvaluation {
+        task: cfg.task.clone(),
+        policy: path.display().to_string(),
+        scale,
+        seed: cfg.seed,
+        first_start: EVAL_SEED,
+        rate: Rate::of(wins, episodes),
+        successes: result.successes,
+    })
+}
