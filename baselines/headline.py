@@ -1,13 +1,16 @@
-"""The headline experience: steer the shipped Lift EDP with Equi-DSRL for a few minutes and show
-what steering did (the README's main job).
+"""The headline experience: steer the shipped Lift EDP for a few minutes and show what steering
+did, beside its controls on the same pinned evaluation starts (the README's main job).
 
-    python -m baselines.headline                       # 2 seeds x 10k env steps, Rust agents
-    python -m baselines.headline --steps 40000 --seeds 0 1 2 --methods equi dsrl
-    python -m baselines.headline --agents sb3          # the same runs with the SB3 + escnn agents
+    python -m baselines.headline                       # DSRL-NA recipe, 2 seeds x 16k env steps, Rust agents
+    python -m baselines.headline --recipe dsrl --methods equi   # DSRL's own protocol (collapses)
+    python -m baselines.headline --agents sb3          # the SB3 + escnn agents (DSRL's protocol only)
 
-It measures the base policy alone (latent noise N(0, I)), runs the steering agents (resumable:
-a second call continues where the first stopped), prints the before/after table and writes
-``<out>/report/table.md`` and ``<out>/report/lift.png`` (success rate and mean Q vs env steps).
+It runs the steering agents (resumable: a second call continues where the first stopped), then
+prints ``equigym.steer compare``'s table: the base policy (latent noise N(0, I)) and the
+narrow-noise bases N(0, s^2 I) evaluated with the runs' seeds, the untrained actor, the final
+success (the last three evaluations) and the peak, as mean +- s.e. over seeds and pooled with
+Wilson 95 % intervals; it writes ``<out>/report/compare.md``, ``table.md`` and ``lift.png``
+(success rate and mean Q vs env steps).
 
 The Rust agents (``equigym.steer``) are the default: they give the same log on every machine
 and thread count, where the SB3 runs differ from one CPU to another. Each run is one thread;
@@ -22,6 +25,7 @@ from pathlib import Path
 
 from baselines import steer
 from baselines.report import LABELS, load_runs, mean_se, write_report
+from equigym.steer import RECIPES
 
 
 def summary(out: Path, task: str, methods: list[str], base: float) -> str:
@@ -44,27 +48,42 @@ def summary(out: Path, task: str, methods: list[str], base: float) -> str:
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", default="lift", choices=sorted(steer.LATENT_IDS))
-    p.add_argument("--methods", nargs="+", default=["equi"], choices=steer.METHODS)
+    p.add_argument("--methods", nargs="+", default=["dsrl"], choices=steer.METHODS)
+    p.add_argument(
+        "--recipe", default="na-tos-h40", choices=sorted(RECIPES), help="run options (equigym.steer.RECIPES)"
+    )
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
-    p.add_argument("--steps", type=int, default=10_000, help="environment steps per run")
+    p.add_argument("--steps", type=int, default=16_000, help="environment steps per run")
     p.add_argument("--eval-every", type=int, default=2000)
-    p.add_argument("--eval-episodes", type=int, default=50)
+    p.add_argument("--eval-episodes", type=int, default=100)
     p.add_argument("--ent-init", type=float, default=None)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", default=None, help="default runs/headline (Rust agents) or runs/headline-sb3")
     p.add_argument("--agents", choices=["rust", "sb3"], default="rust", help="Rust agents or the SB3 + escnn baselines")
     a = p.parse_args(argv)
+    if a.agents == "sb3" and RECIPES[a.recipe]:
+        p.error(f"recipe {a.recipe} needs the Rust agents; use --recipe dsrl with --agents sb3")
     a.out = a.out or ("runs/headline" if a.agents == "rust" else "runs/headline-sb3")
     if a.agents == "rust":
         run_rust(a)
     else:
         run_sb3(a)
-    base = steer.base_success(a.task, a.out, a.eval_episodes)
-    write_report(a.out, Path(a.out) / "report")
+    report = Path(a.out) / "report"
+    write_report(a.out, report)
     print()
-    print(f"Steering the shipped {a.task} EDP ({a.steps:,} env steps per run, CPU preset, {a.agents} agents):")
-    print(summary(Path(a.out), a.task, a.methods, base))
-    print(f"table and plot: {Path(a.out) / 'report'}")
+    print(
+        f"Steering the shipped {a.task} EDP ({a.steps:,} env steps per run, CPU preset, {a.agents} agents, "
+        f"recipe {a.recipe}):"
+    )
+    if a.agents == "rust":
+        from equigym import steer as rust_steer
+
+        runs = [str(Path(a.out) / a.task / m / f"seed{s}") for m in a.methods for s in a.seeds]
+        print(rust_steer.compare(runs, out=str(report / "compare.md"), threads=max(1, a.workers)))
+    else:
+        base = steer.base_success(a.task, a.out, a.eval_episodes)
+        print(summary(Path(a.out), a.task, a.methods, base))
+    print(f"tables and plot: {report}")
 
 
 def run_rust(a: argparse.Namespace) -> None:
@@ -82,6 +101,7 @@ def run_rust(a: argparse.Namespace) -> None:
             eval_episodes=a.eval_episodes,
             ent_init=a.ent_init,
             progress=a.workers == 1,
+            **RECIPES[a.recipe],
         )
 
     jobs = [(m, s) for m in a.methods for s in a.seeds]

@@ -193,37 +193,34 @@ def test_bad_arguments_raise_value_errors(tmp_path):
 
 
 def test_main_job_steers_with_the_rust_agents(tmp_path, capsys):
-    """The README's main job (baselines.headline) runs the Rust agents by default: the runs are
-    Rust runs, logged at each evaluation, and the before/after table has their rows."""
+    """The README's main job (baselines.headline) runs the Rust agents with the named recipe by
+    default: the runs are Rust runs with the recipe's options, logged at each evaluation, and the
+    printed table puts them beside the base and narrow-noise controls with intervals."""
     from baselines import headline
 
     argv = ["--steps", "128", "--eval-every", "64", "--eval-episodes", "2", "--seeds", "0", "1"]
     headline.main([*argv, "--workers", "2", "--out", str(tmp_path)])
     printed = capsys.readouterr().out
     for seed in (0, 1):
-        run_dir = tmp_path / "lift" / "equi" / f"seed{seed}"
-        assert json.loads((run_dir / "run.json").read_text())["agent"] == "rust"
+        run_dir = tmp_path / "lift" / "dsrl" / f"seed{seed}"
+        meta = json.loads((run_dir / "run.json").read_text())
+        assert meta["agent"] == "rust" and meta["eval_episodes"] == 2
+        assert {k: meta[k] for k in steer.RECIPES["na-tos-h40"]} == steer.RECIPES["na-tos-h40"]
         assert [int(r["env_steps"]) for r in read(run_dir / "log.csv")][-2:] == [64, 128]
-    assert "before (base EDP)" in printed
-    # Mean +- standard error over the seeds, then each seed's value.
-    finals = [float(read(tmp_path / "lift" / "equi" / f"seed{s}" / "log.csv")[-1]["success_rate"]) for s in (0, 1)]
-    mean, se = sum(finals) / 2, abs(finals[0] - finals[1]) / 2
-    line = next(row for row in printed.splitlines() if row.startswith("Equi-DSRL (Rust) final"))
-    assert line.split()[3:] == [
-        f"{mean:.2f}",
-        "+-",
-        f"{se:.2f}",
-        "(2",
-        "seeds:",
-        f"{finals[0]:.2f},",
-        f"{finals[1]:.2f})",
-    ]
+    lines = printed.splitlines()
+    assert any(line.startswith("| base policy, N(0, I) | 2 |") for line in lines)
+    assert any(line.startswith("| narrow-noise base, N(0, 0.5^2 I) | 2 |") for line in lines)
+    final = next(line for line in lines if "target_entropy=40.0), final" in line)
+    finals = [read(tmp_path / "lift" / "dsrl" / f"seed{s}" / "log.csv")[-3:] for s in (0, 1)]
+    wins = sum(round(float(r["success_rate"]) * 2) for rows in finals for r in rows)
+    assert f"{wins}/12 = " in final
     assert (tmp_path / "report" / "lift.png").exists()
+    assert (tmp_path / "report" / "compare.md").read_text().strip() in printed
     # The report says where the runs' time went, from their summary.json.
-    summaries = [json.loads((tmp_path / "lift" / "equi" / f"seed{s}" / "summary.json").read_text()) for s in (0, 1)]
+    summaries = [json.loads((tmp_path / "lift" / "dsrl" / f"seed{s}" / "summary.json").read_text()) for s in (0, 1)]
     assert all(x["eval_env_steps"] > 0 for x in summaries)
     table = (tmp_path / "report" / "table.md").read_text()
-    row = next(line for line in table.splitlines() if line.startswith("| lift | Equi-DSRL (Rust) | 2 |"))
+    row = next(line for line in table.splitlines() if line.startswith("| lift | DSRL (Rust) | 2 |"))
     assert row.split("|")[7].strip() == f"{sum(x['eval_env_steps'] for x in summaries) / 2:,.0f}"
 
 
@@ -251,3 +248,39 @@ def test_summarize_counts_the_peak_only_once_training_started():
     s = steer.summarize(log, train)
     assert s["untrained"] == 0.6 and s["peak"] == 0.7
     assert abs(s["final"] - 0.5) < 1e-12
+
+
+def test_compare_puts_runs_beside_their_controls_on_the_same_starts(tmp_path):
+    """``equigym.steer compare``: a run group's untrained and final rows are counted from its
+    log (final = the last three evaluations, pooled), and the control rows are the base policy
+    evaluated with the runs' own settings and seeds (cached: a second call evaluates nothing)."""
+    from equigym.assets import asset_path
+
+    policy = str(asset_path("edp", "lift.safetensors"))
+    dirs = []
+    for seed, rates in ((0, [0.5, 0.25, 0.75, 1.0, 0.5]), (1, [0.25, 0.5, 0.5, 0.75, 0.75])):
+        d = tmp_path / "runs" / f"seed{seed}"
+        d.mkdir(parents=True)
+        meta = {"method": "dsrl", "task": "lift", "seed": seed, "policy": policy, "noise_aliased": True}
+        (d / "run.json").write_text(json.dumps({**meta, "eval_episodes": 4, "horizon": 60}))
+        rows = "".join(f"{16 + 2000 * i},{r},0.0,1.0\n" for i, r in enumerate(rates))
+        (d / "log.csv").write_text("env_steps,success_rate,mean_q,seconds\n" + rows)
+        dirs.append(str(d))
+    out = tmp_path / "cmp" / "compare.md"
+    text = steer.compare(dirs, (1.0, 0.0), str(out))
+    final = next(line for line in text.splitlines() if "noise_aliased), final" in line)
+    # Seed 0: 3 + 4 + 2 of 12, seed 1: 2 + 3 + 3 of 12.
+    assert "17/24 = 0.708" in final and "0.75, 0.67" in final
+    untrained = next(line for line in text.splitlines() if "untrained actor" in line)
+    assert "3/8 = 0.375" in untrained
+    base = [_core.evaluate_base("lift", seed=s, episodes=4, horizon=60, policy=policy) for s in (0, 1)]
+    wins = sum(b["successes"] for b in base)
+    base_row = next(line for line in text.splitlines() if line.startswith("| base policy"))
+    assert f"{wins}/8 = " in base_row
+    zero_row = next(line for line in text.splitlines() if "0^2 I" in line)
+    assert "| 1 |" in zero_row, "a noiseless base is one evaluation, not one per seed"
+    cached = json.loads((out.parent / "controls.json").read_text())
+    assert len(cached) == 3
+    (out.parent / "controls.json").write_text(json.dumps({k: {**v, "successes": 0} for k, v in cached.items()}))
+    again = steer.compare(dirs, (1.0, 0.0), str(out))
+    assert "| 0/8 = 0.000" in next(line for line in again.splitlines() if line.startswith("| base policy"))

@@ -805,6 +805,15 @@ struct RunMeta<'a> {
     target_entropy: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     variant: Option<&'a str>,
+    /// Evaluation settings and the controller, when not the defaults.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    eval_every: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    eval_episodes: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    controller: Option<&'a str>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    horizon: Option<usize>,
 }
 
 fn is_false(b: &bool) -> bool {
@@ -952,6 +961,10 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         noise_aliased: cfg.noise_aliased,
         target_entropy: cfg.target_entropy,
         variant: cfg.variant.as_deref(),
+        eval_every: (cfg.eval_every != EVAL_EVERY).then_some(cfg.eval_every),
+        eval_episodes: (cfg.eval_episodes != EVAL_EPISODES).then_some(cfg.eval_episodes),
+        controller: cfg.cartesian.map(|c| if c { "cartesian" } else { "joint" }),
+        horizon: cfg.horizon,
     }
     .to_json();
     write_atomic(&dir.join("run.json"), meta.as_bytes())?;
@@ -1031,6 +1044,10 @@ mod tests {
             noise_aliased: false,
             target_entropy: None,
             variant: None,
+            eval_every: None,
+            eval_episodes: None,
+            controller: None,
+            horizon: None,
         }
     }
 

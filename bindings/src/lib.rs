@@ -251,6 +251,15 @@ impl Expert {
     }
 }
 
+/// Wilson score interval (95 %) of `successes` out of `n`: `(low, high)`; (0, 1) when n is 0.
+#[pyfunction]
+fn wilson(successes: usize, n: usize) -> PyResult<(f64, f64)> {
+    if successes > n {
+        return Err(errors::invalid_input(format!("successes ({successes}) must be at most n ({n})")));
+    }
+    Ok(equigym_wrappers::steerability::wilson(successes, n))
+}
+
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Env>()?;
@@ -265,6 +274,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(steer::steer_run, m)?)?;
     m.add_function(wrap_pyfunction!(steer::steer_gradcase, m)?)?;
     m.add_function(wrap_pyfunction!(steer::evaluate_base, m)?)?;
+    m.add_function(wrap_pyfunction!(wilson, m)?)?;
     m.add("EVAL_SEED", equigym_agents::EVAL_SEED)?;
     m.add("TASK_IDS", TASK_IDS.to_vec())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

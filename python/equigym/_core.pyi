@@ -19,6 +19,7 @@ __all__ = [
     "steer_run",
     "steer_gradcase",
     "evaluate_base",
+    "wilson",
     "EVAL_SEED",
     "TASK_IDS",
     "__version__",
@@ -349,3 +350,6 @@ def evaluate_base(
     to the bound, evaluated as a steering run evaluates its actor. Keys: task, policy, scale,
     seed, first_start, successes, episodes, success_rate, low, high (Wilson 95 %), outcomes
     (one bool per episode, in start order)."""
+
+def wilson(successes: int, n: int) -> tuple[float, float]:
+    """Wilson score interval (95 %) of ``successes`` out of ``n``; (0, 1) when ``n`` is 0."""

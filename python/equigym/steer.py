@@ -5,6 +5,7 @@ and a report next to the SB3 baselines.
     python -m equigym.steer sweep --methods dsrl equi approx --tasks lift --seeds 0 1 2 3 4 --steps 16000 \\
         --out runs/sweep [--sb3 dsrl equi approx --sb3-seeds 0 1 2] [--cpus 2] [--address ray://host:10001] [--resume]
     python -m equigym.steer report --runs runs/sweep/rust [--sb3-runs runs/steer] --out docs/steering/rust
+    python -m equigym.steer compare RUN_DIR ... --out docs/steering/x/compare.md   # with controls and intervals
 
 ``run`` trains in-process in Rust (the GIL is released) and writes
 ``<out>/<task>/<method>/seed<S>/log.csv`` (``env_steps, success_rate, mean_q, seconds``, as the
@@ -35,6 +36,15 @@ from equigym import _core
 
 METHODS = ("dsrl", "equi", "approx")
 TASKS = ("lift", "stack", "square")
+#: Named bundles of run options. ``dsrl``: DSRL's own protocol (episodes run to the horizon,
+#: a critic over noise, target entropy 0). ``na-tos-h40``: the recipe that keeps the 16k-step
+#: Lift EDP's success instead of collapsing it (docs/steering.md, "The recipe on the shipped
+#: Lift EDP"): noise aliasing (an action-space critic), training episodes that end at success,
+#: and a target entropy of +40 nats (about N(0, I)'s width in the 40-d latent).
+RECIPES: dict[str, dict[str, Any]] = {
+    "dsrl": {},
+    "na-tos-h40": {"noise_aliased": True, "terminate_on_success": True, "target_entropy": 40.0},
+}
 
 
 def _policy(task: str, policy: str | None) -> str:
@@ -310,7 +320,7 @@ def diagnose(runs: list[str], out: str | None = None) -> str:
     def cell(v: str | None, fmt: str) -> str:
         return "" if v in (None, "", "nan") else format(float(v), fmt)
 
-    options = ("terminate_on_success", "noise_aliased", "target_entropy")
+    options = _OPTIONS
     summary = [
         "| run | method | options | untrained actor | peak after training starts | final (last 3) |",
         "|---|---|---|---:|---:|---:|",
@@ -345,6 +355,138 @@ def diagnose(runs: list[str], out: str | None = None) -> str:
     return text
 
 
+#: Noise scales of the control arms: the base policy (1) and narrow-noise bases N(0, s^2 I).
+CONTROL_SCALES = (1.0, 0.5, 0.0)
+#: run.json's evaluation settings when it does not name them (the runner's defaults).
+_DEFAULT_EVAL = {"eval_every": 2000, "eval_episodes": 50}
+_OPTIONS = ("terminate_on_success", "noise_aliased", "target_entropy")
+
+
+def _read_run(d: Path) -> dict[str, Any]:
+    with open(d / "log.csv", newline="") as f:
+        log = list(csv.DictReader(f))
+    train: dict[str, dict[str, str]] = {}
+    if (d / "train.csv").exists():
+        with open(d / "train.csv", newline="") as f:
+            train = {r["env_steps"]: r for r in csv.DictReader(f)}
+    meta = {**_DEFAULT_EVAL, **json.loads((d / "run.json").read_text())}
+    return {"dir": d, "log": log, "train": train, "meta": meta}
+
+
+def _label(meta: dict[str, Any]) -> str:
+    opts = [f"{k}={meta[k]}" if k == "target_entropy" else k for k in _OPTIONS if k in meta]
+    return meta["method"] + (f" ({', '.join(opts)})" if opts else "")
+
+
+def _pooled(successes: int, n: int) -> str:
+    low, high = _core.wilson(successes, n)
+    return f"{successes}/{n} = {successes / n:.3f} [{low:.3f}, {high:.3f}]" if n else "-"
+
+
+def _mean_se(xs: list[float]) -> str:
+    if not xs:
+        return "-"
+    m = sum(xs) / len(xs)
+    if len(xs) < 2:
+        return f"{m:.3f}"
+    se = math.sqrt(sum((x - m) ** 2 for x in xs) / (len(xs) - 1) / len(xs))
+    return f"{m:.3f} +- {se:.3f}"
+
+
+def controls(
+    meta: dict[str, Any], seeds: list[int], scales=CONTROL_SCALES, cache: Path | None = None, threads: int = 1
+) -> dict[float, list[dict[str, Any]]]:
+    """The control arms of runs described by ``meta`` (run.json): the base policy with noise
+    N(0, s^2 I) for each scale, one evaluation per seed on the runs' own evaluation starts and
+    episode count (``_core.evaluate_base``). Cached in ``cache`` (JSON) by settings."""
+    known: dict[str, Any] = json.loads(cache.read_text()) if cache and cache.exists() else {}
+    settings = {
+        "task": meta["task"],
+        "policy": meta["policy"],
+        "episodes": meta["eval_episodes"],
+        "controller": meta.get("controller"),
+        "joint_limits": meta.get("joint_limits", True),
+        "horizon": meta.get("horizon"),
+        "variant": meta.get("variant"),
+    }
+    out: dict[float, list[dict[str, Any]]] = {}
+    for scale in scales:
+        out[scale] = []
+        # Without noise the base is deterministic: one evaluation stands for every seed.
+        for seed in seeds if scale > 0 else seeds[:1]:
+            key = json.dumps({**settings, "scale": scale, "seed": seed}, sort_keys=True)
+            if key not in known:
+                kw = {k: v for k, v in settings.items() if k != "task"}
+                known[key] = _core.evaluate_base(meta["task"], seed=seed, scale=scale, threads=threads, **kw)
+                if cache:
+                    cache.parent.mkdir(parents=True, exist_ok=True)
+                    cache.write_text(json.dumps(known, indent=1) + "\n")
+            out[scale].append(known[key])
+    return out
+
+
+def compare(runs: list[str], scales=CONTROL_SCALES, out: str | None = None, threads: int = 1) -> str:
+    """The fair comparison of steering runs with their controls, on the same pinned evaluation
+    starts: per group of runs (method and options), the untrained actor (first evaluation) and
+    the final success (mean of the last ``FINAL_EVALUATIONS`` evaluations) as mean +- s.e. over
+    seeds and pooled over every final episode with a Wilson 95 % interval, and the peak once
+    training started; beside them the base policy and the narrow-noise bases N(0, s^2 I) of the
+    same settings and seeds (``controls``; cached in ``<out dir>/controls.json``). The pooled
+    intervals count episodes as independent, but every evaluation reuses the same starts, so
+    they are narrower than the truth; the s.e. over seeds is the figure to compare methods by."""
+    read = [_read_run(Path(d)) for d in runs]
+    groups: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
+    for r in read:
+        m = r["meta"]
+        groups.setdefault((m["task"], m["policy"], _label(m)), []).append(r)
+    cache = Path(out).parent / "controls.json" if out else None
+    lines = []
+    for task, policy in sorted({(t, p) for t, p, _ in groups}):
+        members = [g for g in groups if g[:2] == (task, policy)]
+        first = groups[members[0]][0]["meta"]
+        n = first["eval_episodes"]
+        seeds = sorted({r["meta"]["seed"] for g in members for r in groups[g]})
+        lines += [
+            f"### {task}, `{policy}`",
+            "",
+            f"{n} episodes per evaluation on the pinned starts {_core.EVAL_SEED} + k; final = mean of the last "
+            f"{FINAL_EVALUATIONS} evaluations; pooled = every final (or control) episode of every seed, Wilson 95 %.",
+            "",
+            "| arm | seeds | per seed | mean +- s.e. over seeds | pooled |",
+            "|---|---:|---|---:|---:|",
+        ]
+        for scale, evals in controls(first, seeds, scales, cache, threads).items():
+            name = "base policy, N(0, I)" if scale == 1.0 else f"narrow-noise base, N(0, {scale:g}^2 I)"
+            rates = [e["success_rate"] for e in evals]
+            wins, total = sum(e["successes"] for e in evals), sum(e["episodes"] for e in evals)
+            per = ", ".join(f"{x:.2f}" for x in rates)
+            lines.append(f"| {name} | {len(evals)} | {per} | {_mean_se(rates)} | {_pooled(wins, total)} |")
+        for g in members:
+            rs = sorted(groups[g], key=lambda r: r["meta"]["seed"])
+            for what in ("untrained actor", "final", "peak after training starts"):
+                per_seed, wins, total = [], 0, 0
+                for r in rs:
+                    k = r["meta"]["eval_episodes"]
+                    rows = r["log"][:1] if what == "untrained actor" else r["log"][-FINAL_EVALUATIONS:]
+                    if what.startswith("peak"):
+                        per_seed.append(summarize(r["log"], r["train"])["peak"])
+                        continue
+                    counts = [round(float(x["success_rate"]) * k) for x in rows]
+                    per_seed.append(sum(counts) / (k * len(counts)))
+                    wins, total = wins + sum(counts), total + k * len(counts)
+                steps = max(int(r["log"][-1]["env_steps"]) for r in rs)
+                name = f"{g[2]}, {what}" + (f" ({steps:,} env steps)" if what == "final" else "")
+                per = ", ".join(f"{x:.2f}" for x in per_seed)
+                pooled = _pooled(wins, total) if total else "-"
+                lines.append(f"| {name} | {len(rs)} | {per} | {_mean_se(per_seed)} | {pooled} |")
+        lines.append("")
+    text = "\n".join(lines)
+    if out:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        Path(out).write_text(text)
+    return text
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(
         prog="python -m equigym.steer", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -363,6 +505,12 @@ def main(argv: list[str] | None = None) -> None:
             s.add_argument("--horizon", type=int, default=None, help="episode length override (control steps)")
             s.add_argument("--quiet", action="store_true")
             s.add_argument("--out", default="runs/steer-rust")
+            s.add_argument(
+                "--recipe",
+                choices=sorted(RECIPES),
+                default="dsrl",
+                help="named run options (RECIPES); flags add to them",
+            )
         else:
             s.add_argument("--methods", nargs="*", choices=METHODS, default=list(METHODS))
             s.add_argument("--sb3", nargs="*", choices=METHODS, default=None, help="SB3 + escnn methods to run as well")
@@ -404,17 +552,25 @@ def main(argv: list[str] | None = None) -> None:
     r.add_argument("--runs", default="runs/sweep/rust", help="Rust runs")
     r.add_argument("--sb3-runs", default=None, help="SB3 runs to show beside them")
     r.add_argument("--out", default="docs/steering/rust")
+    cp = sub.add_parser("compare", help="runs beside the base and narrow-noise controls, with intervals")
+    cp.add_argument("runs", nargs="+", help="run directories (.../<task>/<method>/seed<S>)")
+    cp.add_argument("--scales", nargs="+", type=float, default=list(CONTROL_SCALES), help="control noise scales")
+    cp.add_argument("--threads", type=int, default=1, help="control-evaluation threads (results do not depend on it)")
+    cp.add_argument("--out", default=None, help="also write the table here (controls cached beside it)")
     dg = sub.add_parser("diagnose", help="evaluations beside the learner's state (log.csv + train.csv) per run")
     dg.add_argument("runs", nargs="+", help="run directories (.../<task>/<method>/seed<S>)")
     dg.add_argument("--out", default=None, help="also write the tables to this Markdown file")
     a = p.parse_args(argv)
     if a.cmd == "report":
         report(a)
+    elif a.cmd == "compare":
+        print(compare(a.runs, tuple(a.scales), a.out, a.threads))
     elif a.cmd == "diagnose":
         print(diagnose(a.runs, a.out))
     elif a.cmd == "sweep":
         sweep(a)
     else:
+        recipe = RECIPES[a.recipe]
         s = run(
             a.method,
             a.task,
@@ -430,9 +586,9 @@ def main(argv: list[str] | None = None) -> None:
             policy=a.policy,
             ent_init=a.ent_init,
             horizon=a.horizon,
-            terminate_on_success=a.terminate_on_success,
-            noise_aliased=a.noise_aliased,
-            target_entropy=a.target_entropy,
+            terminate_on_success=a.terminate_on_success or recipe.get("terminate_on_success", False),
+            noise_aliased=a.noise_aliased or recipe.get("noise_aliased", False),
+            target_entropy=a.target_entropy if a.target_entropy is not None else recipe.get("target_entropy"),
             progress=not a.quiet,
         )
         print(json.dumps({k: v for k, v in s.items() if k != "rows"}, default=str))
