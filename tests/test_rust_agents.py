@@ -284,3 +284,8 @@ def test_compare_puts_runs_beside_their_controls_on_the_same_starts(tmp_path):
     (out.parent / "controls.json").write_text(json.dumps({k: {**v, "successes": 0} for k, v in cached.items()}))
     again = steer.compare(dirs, (1.0, 0.0), str(out))
     assert "| 0/8 = 0.000" in next(line for line in again.splitlines() if line.startswith("| base policy"))
+    # Read as they stood at 4,016 env steps: the first three evaluations are the final ones.
+    cut = steer.compare(dirs, (1.0,), str(out), at=4016)
+    assert "11/24 = 0.458" in next(line for line in cut.splitlines() if "noise_aliased), final (4,016" in line)
+    with pytest.raises(ValueError, match="no evaluation"):
+        steer.compare(dirs, (1.0,), None, at=10)

@@ -425,16 +425,24 @@ def controls(
     return out
 
 
-def compare(runs: list[str], scales=CONTROL_SCALES, out: str | None = None, threads: int = 1) -> str:
+def compare(
+    runs: list[str], scales=CONTROL_SCALES, out: str | None = None, threads: int = 1, at: int | None = None
+) -> str:
     """The fair comparison of steering runs with their controls, on the same pinned evaluation
     starts: per group of runs (method and options), the untrained actor (first evaluation) and
     the final success (mean of the last ``FINAL_EVALUATIONS`` evaluations) as mean +- s.e. over
     seeds and pooled over every final episode with a Wilson 95 % interval, and the peak once
     training started; beside them the base policy and the narrow-noise bases N(0, s^2 I) of the
-    same settings and seeds (``controls``; cached in ``<out dir>/controls.json``). The pooled
+    same settings and seeds (``controls``; cached in ``<out dir>/controls.json``). With ``at``,
+    each run is read as it stood at that many env steps. The pooled
     intervals count episodes as independent, but every evaluation reuses the same starts, so
     they are narrower than the truth; the s.e. over seeds is the figure to compare methods by."""
     read = [_read_run(Path(d)) for d in runs]
+    if at is not None:  # every run as it stood at `at` env steps (runs extended past it are cut)
+        for r in read:
+            r["log"] = [row for row in r["log"] if int(row["env_steps"]) <= at]
+            if not r["log"]:
+                raise ValueError(f"{r['dir']} has no evaluation at or before {at} env steps")
     groups: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
     for r in read:
         m = r["meta"]
@@ -557,6 +565,7 @@ def main(argv: list[str] | None = None) -> None:
     cp.add_argument("--scales", nargs="+", type=float, default=list(CONTROL_SCALES), help="control noise scales")
     cp.add_argument("--threads", type=int, default=1, help="control-evaluation threads (results do not depend on it)")
     cp.add_argument("--out", default=None, help="also write the table here (controls cached beside it)")
+    cp.add_argument("--at", type=int, default=None, help="read every run as it stood at this many env steps")
     dg = sub.add_parser("diagnose", help="evaluations beside the learner's state (log.csv + train.csv) per run")
     dg.add_argument("runs", nargs="+", help="run directories (.../<task>/<method>/seed<S>)")
     dg.add_argument("--out", default=None, help="also write the tables to this Markdown file")
@@ -564,7 +573,7 @@ def main(argv: list[str] | None = None) -> None:
     if a.cmd == "report":
         report(a)
     elif a.cmd == "compare":
-        print(compare(a.runs, tuple(a.scales), a.out, a.threads))
+        print(compare(a.runs, tuple(a.scales), a.out, a.threads, a.at))
     elif a.cmd == "diagnose":
         print(diagnose(a.runs, a.out))
     elif a.cmd == "sweep":
