@@ -527,6 +527,48 @@ def benchmark(
     return rows
 
 
+def predictability(
+    demo_path: str | Path, histories: tuple[int, ...] = (0, 1), folds: int = 5, features: int = 1024, seed: int = 0
+) -> list[dict[str, Any]]:
+    """Is the demo action a function of the observation? Per history length h, regress the action
+    a_t on [o_t, o_t - o_{t-1}, ..., o_{t-h+1} - o_{t-h}] (ridge regression on random ReLU
+    features: a smooth regressor with no training loop) and report the held-out squared error
+    per action dimension, divided by that dimension's variance (1: no better than the mean), with
+    demos held out whole (``folds`` groups). If a step of history lowers it, the action depends
+    on motion the observation does not show (the arm lags its commands), or on the expert's
+    hidden timers; what remains is multimodality or noise. Hand-written because it is ten lines
+    of numpy, not a model to fit well."""
+    data = load_demos(demo_path)
+    demos = data["demos"]
+    if len(demos) < folds:
+        raise ValueError(f"{len(demos)} demos cannot be split into {folds} held-out groups")
+    rows = []
+    for h in histories:
+        X, Y, G = [], [], []
+        for i, d in enumerate(demos):
+            o, a = np.asarray(d["obs"], dtype=np.float64), np.asarray(d["actions"], dtype=np.float64)
+            for t in range(len(a)):
+                parts = [o[t]] + [o[max(t - j, 0)] - o[max(t - j - 1, 0)] for j in range(h)]
+                X.append(np.concatenate(parts))
+                Y.append(a[t])
+                G.append(i)
+        X, Y, G = np.asarray(X), np.asarray(Y), np.asarray(G)
+        X = (X - X.mean(0)) / (X.std(0) + 1e-9)
+        rng = np.random.default_rng(seed)
+        H = np.maximum(
+            X @ rng.normal(size=(X.shape[1], features)) / math.sqrt(X.shape[1]) + rng.normal(size=features), 0
+        )
+        err = np.zeros_like(Y)
+        for f in range(folds):
+            train_rows, test_rows = G % folds != f, G % folds == f
+            A = H[train_rows]
+            beta = np.linalg.solve(A.T @ A + 0.1 * len(A) * np.eye(features), A.T @ Y[train_rows])
+            err[test_rows] = H[test_rows] @ beta - Y[test_rows]
+        nmse = (err**2).mean(0) / (Y.var(0) + 1e-12)
+        rows.append({"history": h, "samples": len(Y), "nmse": [float(v) for v in nmse]})
+    return rows
+
+
 def _eval_seed() -> int:
     from equigym import _core
 
@@ -625,8 +667,14 @@ def main(argv: list[str] | None = None) -> None:
     r.add_argument("--out", default="docs/edp.md")
     r.add_argument("--episodes", type=int, default=EVAL_EPISODES)
     r.add_argument("--threads", type=int, default=1, help="evaluation threads (results do not depend on it)")
+    q = sub.add_parser("predictability", help="held-out error of the demo action regressed on the observation")
+    q.add_argument("--demos", required=True)
+    q.add_argument("--histories", nargs="+", type=int, default=[0, 1, 2])
     a = p.parse_args(argv)
-    if a.cmd == "report":
+    if a.cmd == "predictability":
+        for row in predictability(a.demos, tuple(a.histories)):
+            print(json.dumps({**row, "nmse": [round(v, 4) for v in row["nmse"]]}))
+    elif a.cmd == "report":
         torch.set_num_threads(1)
         print(report(a.out, a.episodes, threads=a.threads))
     elif a.cmd == "eval":

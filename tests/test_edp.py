@@ -314,3 +314,29 @@ def test_base_evaluation_runs_on_the_pinned_starts_with_wilson_intervals():
         assert success == outcome, k
     with pytest.raises(ValueError, match="noise scale"):
         evaluate(policy, episodes=2, scale=-1.0)
+
+
+def test_predictability_separates_markov_actions_from_motion_dependent_ones(monkeypatch):
+    """``baselines.edp predictability``: an action that is a smooth function of the observation
+    is predicted on held-out demos (normalised error near 0, with or without history); one that
+    is the observation's last change (a velocity the observation does not show) is not, until
+    one step of history is given."""
+    import baselines.edp as edp
+
+    rng = np.random.default_rng(1)
+    demos = []
+    for _ in range(10):
+        o = np.cumsum(rng.normal(size=(60, 3)) * 0.1, axis=0)
+        vel = np.diff(o, axis=0, prepend=o[:1])
+        demos.append({"obs": o, "actions": np.concatenate([np.tanh(o), vel], axis=1)})
+    monkeypatch.setattr(edp, "load_demos", lambda path: {"demos": demos})
+    rows = edp.predictability("synthetic", (0, 1), features=512)
+    assert [r["history"] for r in rows] == [0, 1] and all(len(r["nmse"]) == 6 for r in rows)
+    smooth0, vel0 = rows[0]["nmse"][:3], rows[0]["nmse"][3:]
+    smooth1, vel1 = rows[1]["nmse"][:3], rows[1]["nmse"][3:]
+    assert max(smooth0) < 0.2 and max(smooth1) < 0.2
+    assert min(vel0) > 0.8, "without history the velocity is not in the observation"
+    assert max(vel1) < 0.1
+    assert edp.predictability("synthetic", (0,), features=512)[0] == rows[0]
+    with pytest.raises(ValueError, match="held-out groups"):
+        edp.predictability("synthetic", (0,), folds=20)
