@@ -74,10 +74,10 @@ def parse_args():
     ap.add_argument("--quick", action="store_true", help="smoke test: fewer steps, B in 1,8,64")
     ap.add_argument("--timeout", type=float, default=1800)
     ap.add_argument("--out", type=Path, default=HERE / "results" / "suite.md")
-    ap.add_argument("--update-readme", action="store_true",
-                    help="also rewrite the figures between the suite markers in README.md")
+    ap.add_argument("--update-docs", "--update-readme", dest="update_docs", action="store_true",
+                    help="also rewrite the figures between the suite markers in docs/performance.md")
     ap.add_argument("--from-json", type=Path,
-                    help="measure nothing: rewrite the report, plot (and README) from a suite JSON file")
+                    help="measure nothing: rewrite the report, plot (and docs/performance.md) from a suite JSON file")
     args = ap.parse_args()
     if args.quick:
         args.steps, args.reps, args.resets, args.warmup = 300, 1, 3, 50
@@ -374,8 +374,10 @@ def plot(meta, single, pandagym, vector, path):
     return True
 
 
-README_BEGIN = "<!-- suite:begin (written by benches/suite.py --update-readme) -->"
+README_BEGIN = "<!-- suite:begin (written by benches/suite.py --update-docs) -->"
 README_END = "<!-- suite:end -->"
+#: The page whose figures ``--update-docs`` rewrites between the markers.
+PERFORMANCE_DOC = HERE.parent / "docs" / "performance.md"
 
 
 def readme_block(meta, single, pandagym, vector, plot_rel, latent=None, edp=None):
@@ -429,11 +431,11 @@ def readme_block(meta, single, pandagym, vector, plot_rel, latent=None, edp=None
     return "\n".join(L)
 
 
-def update_readme(block, path=None):
-    path = path or HERE.parent / "README.md"
+def update_docs(block, path=None):
+    path = path or PERFORMANCE_DOC
     text = path.read_text()
     if README_BEGIN not in text or README_END not in text:
-        log(f"{path} has no suite markers; README not updated")
+        log(f"{path} has no suite markers; not updated")
         return
     head, rest = text.split(README_BEGIN, 1)
     _, tail = rest.split(README_END, 1)
@@ -448,9 +450,9 @@ def write_outputs(args, meta, single, pandagym, vector, latent=None, edp=None):
     md = report(meta, single, pandagym, vector, png.name if has_plot else "(no plot: matplotlib missing)", latent, edp)
     print(md)
     args.out.write_text(md)
-    if args.update_readme:
-        rel = os.path.relpath(png, HERE.parent) if has_plot else "benches/results/suite.md"
-        update_readme(readme_block(meta, single, pandagym, vector, rel, latent, edp))
+    if args.update_docs:
+        rel = os.path.relpath(png, PERFORMANCE_DOC.parent) if has_plot else "../benches/results/suite.md"
+        update_docs(readme_block(meta, single, pandagym, vector, rel, latent, edp))
     log(f"wrote {args.out}" + (f", {png}" if has_plot else ""))
 
 
