@@ -26,7 +26,10 @@ def test_run_logs_resumes_and_reports(method, tmp_path):
     out = tmp_path / "runs"
     run_dir = steer.run(method, "lift", 0, 64, out, TINY, eval_every=32, eval_episodes=1, progress=False)
     first = rows(run_dir / "log.csv")
-    assert [int(r["env_steps"]) for r in first][:2] == [8, 40] or int(first[-1]["env_steps"]) >= 32
+    # The first evaluation follows the first vector step (2 envs x a 4-action chunk, or one raw
+    # action each for SAC), then one every 32 env steps.
+    first_step = 2 if method == "sac" else 8
+    assert [int(r["env_steps"]) for r in first] == [first_step, 32, 64]
     assert (run_dir / "checkpoint" / "model.zip").exists() and (run_dir / "checkpoint" / "replay.pkl").exists()
     meta = json.loads((run_dir / "run.json").read_text())
     assert meta["method"] == method and meta["params_actor"] > 0
@@ -48,8 +51,7 @@ def test_run_logs_resumes_and_reports(method, tmp_path):
     rate = steer.base_success("lift", out, episodes=2)
     assert 0.0 <= rate <= 1.0 and (out / "lift" / "base.json").exists()
     text = write_report(out, tmp_path / "report")
-    # The method just run is one the runner declares, and the report has its row.
-    assert method in steer.METHODS
+    # The report has the method's row.
     assert "| lift | " in text and (tmp_path / "report" / "lift.png").exists()
     label = {"dsrl": "DSRL", "equi": "Equi-DSRL", "approx": "Approx-Equi-DSRL", "sac": "SAC (raw actions)"}[method]
     assert label in text

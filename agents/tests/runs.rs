@@ -157,8 +157,9 @@ fn noise_aliased_runs_resume_bit_for_bit_and_learn_otherwise() {
     let plain = run(&tiny(method, &plain_dir)).unwrap();
     assert_ne!(a.params_hash, plain.params_hash, "noise aliasing changes the learner");
     let meta = std::fs::read_to_string(a_dir.join("lift/equi/seed3/run.json")).unwrap();
-    assert!(meta.contains("\"terminate_on_success\": true, \"noise_aliased\": true}"), "{meta}");
-    serde_json::from_str::<serde_json::Value>(&meta).unwrap();
+    let meta: serde_json::Value = serde_json::from_str(&meta).unwrap();
+    assert_eq!((&meta["terminate_on_success"], &meta["noise_aliased"]), (&true.into(), &true.into()), "{meta}");
+    assert_eq!((&meta["eval_every"], &meta["eval_episodes"], &meta["horizon"]), (&128.into(), &3.into(), &48.into()));
 
     let b_dir = scratch("na-b");
     let mut cb = cfg(&b_dir);

@@ -291,6 +291,21 @@ fn dense_and_sparse_rewards() {
     }
     assert_eq!(*rewards.last().unwrap(), 1.0);
     assert!(rewards[0] < rewards[rewards.len() - 2], "shaped reward should grow as the gripper reaches");
+    // Sparse (the default): the same episode pays 0 until the successful step, which pays 1.
+    let mut env = Env::new(EnvConfig::new("lift")).unwrap();
+    env.reset(4).unwrap();
+    expert.reset(&env, 4);
+    let mut sparse = Vec::new();
+    loop {
+        let r = env.step(&expert.act(&env)).unwrap();
+        sparse.push(r.reward);
+        if r.evaluation.success {
+            break;
+        }
+    }
+    assert_eq!(sparse.len(), rewards.len(), "the reward kind does not change the rollout");
+    assert!(sparse[..sparse.len() - 1].iter().all(|r| *r == 0.0), "{sparse:?}");
+    assert_eq!(*sparse.last().unwrap(), 1.0);
 }
 
 #[test]

@@ -83,7 +83,15 @@ fn drive(policy: DiffusionPolicy) -> Result<(), TestCaseError> {
 
 #[test]
 fn the_unedited_policy_loads_and_steps() {
-    drive(DiffusionPolicy::from_bytes(SHIPPED_LIFT, "lift").unwrap()).unwrap();
+    // Not through `drive`, which accepts a refusal: the shipped file must load, build a latent
+    // env and take a finite step.
+    let policy = DiffusionPolicy::from_bytes(SHIPPED_LIFT, "lift").unwrap();
+    let steps = policy.default_ddim_steps;
+    let env = Env::new(EnvConfig::new("lift")).unwrap();
+    let mut latent = LatentEnv::new(env, Arc::new(policy), DEFAULT_LATENT_BOUND, steps).unwrap();
+    latent.reset(0).unwrap();
+    let step = latent.step(&vec![0.5; latent.latent_dim()]).unwrap();
+    assert!(step.reward.is_finite() && step.executed > 0);
 }
 
 proptest! {
