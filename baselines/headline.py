@@ -3,7 +3,7 @@ did, beside its controls on the same pinned evaluation starts (the README's main
 
     python -m baselines.headline                       # DSRL-NA recipe, 2 seeds x 16k env steps, Rust agents
     python -m baselines.headline --recipe dsrl --methods equi   # DSRL's own protocol (collapses)
-    python -m baselines.headline --agents sb3          # the SB3 + escnn agents (DSRL's protocol only)
+    python -m baselines.headline --agents sb3 --methods equi   # the SB3 + escnn agents (DSRL's protocol only)
 
 It runs the steering agents (resumable: a second call continues where the first stopped), then
 prints ``equigym.steer compare``'s table: the base policy (latent noise N(0, I)) and the
@@ -50,7 +50,10 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--task", default="lift", choices=sorted(steer.LATENT_IDS))
     p.add_argument("--methods", nargs="+", default=["dsrl"], choices=steer.METHODS)
     p.add_argument(
-        "--recipe", default="na-tos-h40", choices=sorted(RECIPES), help="run options (equigym.steer.RECIPES)"
+        "--recipe",
+        default=None,
+        choices=sorted(RECIPES),
+        help="run options (equigym.steer.RECIPES; default na-tos-h40 for the Rust agents, dsrl for SB3)",
     )
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
     p.add_argument("--steps", type=int, default=16_000, help="environment steps per run")
@@ -61,6 +64,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--out", default=None, help="default runs/headline (Rust agents) or runs/headline-sb3")
     p.add_argument("--agents", choices=["rust", "sb3"], default="rust", help="Rust agents or the SB3 + escnn baselines")
     a = p.parse_args(argv)
+    a.recipe = a.recipe or ("na-tos-h40" if a.agents == "rust" else "dsrl")
     if a.agents == "sb3" and RECIPES[a.recipe]:
         p.error(f"recipe {a.recipe} needs the Rust agents; use --recipe dsrl with --agents sb3")
     a.out = a.out or ("runs/headline" if a.agents == "rust" else "runs/headline-sb3")

@@ -289,3 +289,11 @@ def test_compare_puts_runs_beside_their_controls_on_the_same_starts(tmp_path):
     assert "11/24 = 0.458" in next(line for line in cut.splitlines() if "noise_aliased), final (4,016" in line)
     with pytest.raises(ValueError, match="no evaluation"):
         steer.compare(dirs, (1.0,), None, at=10)
+
+
+def test_main_job_refuses_a_rust_only_recipe_for_the_sb3_agents(tmp_path):
+    from baselines import headline
+
+    with pytest.raises(SystemExit):
+        headline.main(["--agents", "sb3", "--recipe", "na-tos-h40", "--out", str(tmp_path)])
+    assert not any(tmp_path.iterdir()), "nothing ran"
