@@ -1,4 +1,6 @@
-//! Control steps per second of a task under uniform random actions, and reset time.
+//! Control steps per second of a task under uniform random actions, and reset time. It also
+//! prints the checksum of the saved state at the end of the run, so that two builds can be
+//! checked for the same bits on the same run.
 //!
 //! `cargo run --release -p equigym-envs --example throughput -- [task] [steps]`
 
@@ -26,13 +28,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     let total = start.elapsed().as_secs_f64();
+    let state = env.get_state()?;
+    let checksum: String = state[state.len() - 8..].iter().map(|b| format!("{b:02x}")).collect();
     let t = Instant::now();
     for s in 0..100 {
         env.reset(s)?;
     }
     let reset_ms = t.elapsed().as_secs_f64() * 10.0;
     println!(
-        "{task}: {:.0} control steps/s (stepping only: {:.0}), reset {reset_ms:.3} ms",
+        "{task}: {:.0} control steps/s (stepping only: {:.0}), reset {reset_ms:.3} ms, final state checksum {checksum}",
         steps as f64 / total,
         steps as f64 / (total - resets)
     );

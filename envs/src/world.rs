@@ -116,6 +116,15 @@ pub struct PhysicsConfig {
     /// [`crate::robot::controller`]); with `joint_limits` off it makes every control step
     /// commute with rotations of the scene about a vertical axis.
     pub cartesian_control: bool,
+    /// Rebuild the arm's joint-space mass matrices before every solver substep (rapier's own
+    /// behaviour) instead of once per physics step (the patched rapier's
+    /// `MultibodyMassMatrixUpdate::EveryStep`; see the module docs and
+    /// `vendor/rapier3d/PATCH.md`). Slower; kept to measure what the reuse changes.
+    pub mass_matrix_every_substep: bool,
+    /// Give the robot's and the objects' extra substeps and sweeps only while they press on
+    /// something (see [`crate::solver_effort`]) instead of always (robot) and whenever anything
+    /// touches an object.
+    pub extra_work_only_when_pressed: bool,
 }
 
 impl Default for PhysicsConfig {
@@ -139,6 +148,8 @@ impl Default for PhysicsConfig {
             joint_limits: true,
             self_collision: true,
             cartesian_control: false,
+            mass_matrix_every_substep: false,
+            extra_work_only_when_pressed: true,
         }
     }
 }
@@ -225,6 +236,11 @@ pub fn build_world(config: &PhysicsConfig, table: &TableSpec) -> (PhysicsWorld, 
     ip.dt = config.timestep as f32;
     ip.num_solver_iterations = config.solver_iterations;
     ip.num_internal_pgs_iterations = config.pgs_iterations;
+    ip.multibody_mass_matrix_update = if config.mass_matrix_every_substep {
+        MultibodyMassMatrixUpdate::EverySubstep
+    } else {
+        MultibodyMassMatrixUpdate::EveryStep
+    };
     // A finger must not "hold" an object across a gap, which recycled contacts allow.
     ip.contact_recycling = false;
     // Solve friction in the biased (position-correcting) pass too. Without it, that pass moves

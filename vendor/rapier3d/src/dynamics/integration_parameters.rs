@@ -7,6 +7,27 @@ use simba::simd::SimdRealField;
 //       LCP `(K + C, b)`, `C = diag((1/ms_i - 1) k_ii)` — the coupled soft step — so it shares
 //       the sequential sweep's fixed points; a rigid-LCP-then-cfm-scale variant left piles micro-jiggling.
 
+/// When the staged solver rebuilds a multibody's joint-space mass matrices (and their LU
+/// factorisations) within one step.
+///
+/// The matrices depend on the configuration (through the link Jacobians) and, for the one used
+/// for free accelerations, on the velocities (gyroscopic and Coriolis terms). A substep moves the
+/// configuration by `dt / num_substeps` times the joint velocities, so for joints that turn a
+/// fraction of a radian per second the matrices of consecutive substeps differ little, while a
+/// rebuild is the dominant cost of a step of a many-dof articulation.
+#[derive(Default, Copy, Clone, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde-serialize", derive(Serialize, Deserialize))]
+pub enum MultibodyMassMatrixUpdate {
+    /// Before every solver substep (the behaviour since the substepped solver).
+    #[default]
+    EverySubstep,
+    /// Once per step, before the first substep. Later substeps still refresh the link
+    /// velocities, the body Jacobians and the free accelerations (gravity, applied forces,
+    /// springs, damping, velocity-product terms), and rebuild every joint constraint from the
+    /// fresh Jacobians; only the matrices and their factorisations are those of the step's start.
+    EveryStep,
+}
+
 /// Friction models used for all contact constraints between two rigid-bodies.
 ///
 /// This selection does not apply to multibodies that always rely on the [`FrictionModel::Coulomb`].
@@ -328,6 +349,10 @@ pub struct IntegrationParameters {
     /// The type of friction constraints used in the simulation.
     #[cfg(feature = "dim3")]
     pub friction_model: FrictionModel,
+    /// When multibody mass matrices are rebuilt within a step (default:
+    /// [`MultibodyMassMatrixUpdate::EverySubstep`]).
+    #[cfg_attr(feature = "serde-serialize", serde(default))]
+    pub multibody_mass_matrix_update: MultibodyMassMatrixUpdate,
 }
 
 impl IntegrationParameters {
@@ -432,6 +457,7 @@ impl Default for IntegrationParameters {
             soft_bodies: Default::default(),
             #[cfg(feature = "dim3")]
             friction_model: FrictionModel::default(),
+            multibody_mass_matrix_update: MultibodyMassMatrixUpdate::default(),
         }
     }
 }

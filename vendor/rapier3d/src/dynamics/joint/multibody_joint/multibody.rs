@@ -90,6 +90,11 @@ pub struct MultibodyDofCoupling {
     pub offset: Real,
 }
 
+#[cfg(feature = "serde-serialize")]
+fn empty_inv_mass_columns() -> DMatrix<Real> {
+    DMatrix::zeros(0, 0)
+}
+
 /// An articulated body simulated using the reduced-coordinates approach.
 #[cfg_attr(feature = "serde-serialize", derive(Serialize, Deserialize))]
 #[derive(Clone, Debug)]
@@ -111,6 +116,12 @@ pub struct Multibody {
     // TODO: use sparse matrices?
     augmented_mass: DMatrix<Real>,
     inv_augmented_mass: LU<Real, Dyn, Dyn>,
+    // Column `k` is `inv_augmented_mass` applied to the k-th unit vector, computed with every
+    // factorisation: each joint motor, limit and dry-friction constraint of a dof needs exactly
+    // that column, and rebuilds it at every substep. Not serialized (an empty cache makes the
+    // constraints solve for their column again, with the same result).
+    #[cfg_attr(feature = "serde-serialize", serde(skip, default = "empty_inv_mass_columns"))]
+    inv_augmented_mass_columns: DMatrix<Real>,
     // The indexing sequence for moving all kinematics degrees of
     // freedoms to the end of the generalized coordinates vector.
     augmented_mass_indices: IndexSequence,
@@ -158,6 +169,7 @@ impl Multibody {
             body_jacobians: Vec::new(),
             augmented_mass: DMatrix::zeros(0, 0),
             inv_augmented_mass: LU::new(DMatrix::zeros(0, 0)),
+            inv_augmented_mass_columns: DMatrix::zeros(0, 0),
             acc_augmented_mass: DMatrix::zeros(0, 0),
             acc_inv_augmented_mass: LU::new(DMatrix::zeros(0, 0)),
             augmented_mass_indices: IndexSequence::new(),
@@ -365,6 +377,21 @@ impl Multibody {
     /// The inverse augmented mass matrix of this multibody.
     pub fn inv_augmented_mass(&self) -> &LU<Real, Dyn, Dyn> {
         &self.inv_augmented_mass
+    }
+
+    /// Writes `inv_augmented_mass` applied to the unit vector of `dof` into `out` (of length
+    /// `ndofs`): the column cached at the last mass-matrix update, or a fresh solve when there
+    /// is none (the two agree bit for bit).
+    pub(crate) fn inv_augmented_mass_unit_column(&self, dof: usize, out: &mut DVectorViewMut<'_, Real>) {
+        if self.inv_augmented_mass_columns.nrows() == out.nrows()
+            && dof < self.inv_augmented_mass_columns.ncols()
+        {
+            out.copy_from(&self.inv_augmented_mass_columns.column(dof));
+        } else {
+            out.fill(0.0);
+            out[dof] = 1.0;
+            self.inv_augmented_mass.solve_mut(out);
+        }
     }
 
     /// The first link of this multibody.
@@ -1082,6 +1109,23 @@ impl Multibody {
                 .view((0, 0), (effective_dim, effective_dim))
                 .into_owned(),
         );
+
+        // The unit columns the joint constraints read, for multibodies without kinematic dofs
+        // (the constraints solve a vector of length `ndofs` against the factorisation). Each is
+        // solved exactly as a constraint would solve it.
+        if effective_dim == self.ndofs {
+            if self.inv_augmented_mass_columns.shape() != (self.ndofs, self.ndofs) {
+                self.inv_augmented_mass_columns = DMatrix::zeros(self.ndofs, self.ndofs);
+            }
+            for k in 0..self.ndofs {
+                let mut column = self.inv_augmented_mass_columns.column_mut(k);
+                column.fill(0.0);
+                column[k] = 1.0;
+                self.inv_augmented_mass.solve_mut(&mut column);
+            }
+        } else {
+            self.inv_augmented_mass_columns = DMatrix::zeros(0, 0);
+        }
     }
 
     /// Per-DoF inverse joint-space inertia `diag(M⁻¹)` at the current configuration, where `M`

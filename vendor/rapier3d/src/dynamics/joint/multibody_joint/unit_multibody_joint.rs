@@ -33,12 +33,12 @@ pub fn unit_joint_limit_constraint(
     let rhs_wo_bias = 0.0;
 
     let dof_j_id = *j_id + dof_id + link.assembly_id;
-    jacobians.rows_mut(*j_id, ndofs * 2).fill(0.0);
+    jacobians.rows_mut(*j_id, ndofs).fill(0.0);
     jacobians[dof_j_id] = 1.0;
-    jacobians[dof_j_id + ndofs] = 1.0;
-    multibody
-        .inv_augmented_mass()
-        .solve_mut(&mut jacobians.rows_mut(*j_id + ndofs, ndofs));
+    multibody.inv_augmented_mass_unit_column(
+        dof_id + link.assembly_id,
+        &mut jacobians.rows_mut(*j_id + ndofs, ndofs),
+    );
 
     let lhs = jacobians[dof_j_id + ndofs]; // = J^t * M^-1 J
     let impulse_bounds = [
@@ -96,12 +96,12 @@ pub fn unit_joint_friction_constraint(
     let cfm_coeff = softness.cfm_coeff(params.dt);
 
     let dof_j_id = *j_id + dof_id + link.assembly_id;
-    jacobians.rows_mut(*j_id, ndofs * 2).fill(0.0);
+    jacobians.rows_mut(*j_id, ndofs).fill(0.0);
     jacobians[dof_j_id] = 1.0;
-    jacobians[dof_j_id + ndofs] = 1.0;
-    multibody
-        .inv_augmented_mass()
-        .solve_mut(&mut jacobians.rows_mut(*j_id + ndofs, ndofs));
+    multibody.inv_augmented_mass_unit_column(
+        dof_id + link.assembly_id,
+        &mut jacobians.rows_mut(*j_id + ndofs, ndofs),
+    );
 
     let lhs = jacobians[dof_j_id + ndofs]; // = J^t * M^-1 J
     let max_impulse = friction * params.dt;
@@ -153,12 +153,12 @@ pub fn unit_joint_motor_constraint(
     let motor_params = motor.motor_params(params.dt);
 
     let dof_j_id = *j_id + dof_id + link.assembly_id;
-    jacobians.rows_mut(*j_id, ndofs * 2).fill(0.0);
+    jacobians.rows_mut(*j_id, ndofs).fill(0.0);
     jacobians[dof_j_id] = 1.0;
-    jacobians[dof_j_id + ndofs] = 1.0;
-    multibody
-        .inv_augmented_mass()
-        .solve_mut(&mut jacobians.rows_mut(*j_id + ndofs, ndofs));
+    multibody.inv_augmented_mass_unit_column(
+        dof_id + link.assembly_id,
+        &mut jacobians.rows_mut(*j_id + ndofs, ndofs),
+    );
 
     let lhs = jacobians[dof_j_id + ndofs]; // = J^t * M^-1 J
     let impulse_bounds = [-motor_params.max_impulse, motor_params.max_impulse];

@@ -11,7 +11,10 @@ use crate::dynamics::solver::manifold_store::ManifoldStore;
 use crate::dynamics::solver::solver_contact_graph::SolverContactGraph;
 #[cfg(feature = "dim3")]
 use crate::dynamics::solver::velocity_solver::GyroParams;
-use crate::dynamics::{IntegrationParameters, MultibodyJointSet, RigidBodyHandle, RigidBodySet};
+use crate::dynamics::{
+    IntegrationParameters, MultibodyJointSet, MultibodyMassMatrixUpdate, RigidBodyHandle,
+    RigidBodySet,
+};
 use crate::math::DVector;
 use parry::math::SIMD_WIDTH;
 
@@ -144,7 +147,9 @@ impl VelocitySolver {
 
             if !is_last_substep {
                 multibody.update_velocities(bodies);
-                multibody.update_mass_matrix(params.dt, bodies);
+                if params.multibody_mass_matrix_update == MultibodyMassMatrixUpdate::EverySubstep {
+                    multibody.update_mass_matrix(params.dt, bodies);
+                }
                 multibody.update_acceleration(params.dt, bodies);
 
                 let mut solver_vels_incr = self
