@@ -2,7 +2,9 @@
 //! choice of solver settings: the same random targets as `tests/physics.rs` (uniform absolute
 //! targets, mostly near the table and often below it, random widths), and what of the robot
 //! touches the object at the deepest moment, and the deepest any robot collider gets into the
-//! table or an object. Used to choose the solver settings of `PhysicsConfig`.
+//! table or an object, and how many control steps had an object more than 2 mm or a robot
+//! collider more than 3 mm deep (the tail beyond the single deepest step). Used to choose the
+//! solver settings of `PhysicsConfig`.
 //!
 //! `cargo run --release -p equigym-envs --example depth_probe -- [episodes] [setting...]`
 //!
@@ -45,6 +47,9 @@ fn probe(setting: &Setting, episodes: u64) {
         // (depth of a robot collider in the table or an object, episode, step, in the table?,
         // which robot collider: its index in the rig's collider list)
         let mut worst_robot = (0.0f64, 0u64, 0usize, false, 0usize);
+        // Control steps with an object deeper than 2 mm in the table / a robot collider deeper
+        // than 3 mm in the table or an object: the tails beyond the single deepest step.
+        let (mut deep_objects, mut deep_robot) = (0usize, 0usize);
         for episode in 0..episodes {
             env.reset(1000 + episode).unwrap();
             setting.apply(&mut env);
@@ -95,6 +100,8 @@ fn probe(setting: &Setting, episodes: u64) {
                 let depth = deepest_penetration(&scene.world, objects.iter().copied(), &[table]);
                 let in_objects = deepest_penetration(&scene.world, scene.rig.colliders(), &objects);
                 let in_table = deepest_penetration(&scene.world, scene.rig.colliders(), &[table]);
+                deep_objects += (depth > 0.002) as usize;
+                deep_robot += (in_objects.max(in_table) > 0.003) as usize;
                 if in_objects.max(in_table) > worst_robot.0 {
                     let mut obstacles = objects.clone();
                     obstacles.push(table);
@@ -115,7 +122,8 @@ fn probe(setting: &Setting, episodes: u64) {
         }
         println!(
             "{task:>6}: deepest object {:.2} mm into the table (episode {}, step {}; robot {:.2} mm into an object then); \
-             deepest robot {:.2} mm into {} (episode {}, step {}, rig collider {}); {:.0} steps/s",
+             deepest robot {:.2} mm into {} (episode {}, step {}, rig collider {}); steps with an object > 2 mm \
+             deep {deep_objects}, with a robot collider > 3 mm deep {deep_robot} (of {}); {:.0} steps/s",
             worst.0 * 1e3,
             worst.1,
             worst.2,
@@ -125,6 +133,7 @@ fn probe(setting: &Setting, episodes: u64) {
             worst_robot.1,
             worst_robot.2,
             worst_robot.4,
+            episodes * 400,
             (episodes * 400) as f64 / start.elapsed().as_secs_f64()
         );
     }

@@ -34,7 +34,6 @@ pub mod render;
 pub mod rng;
 pub mod robot;
 pub mod scene;
-pub mod solver_effort;
 pub mod tasks;
 pub mod world;
 

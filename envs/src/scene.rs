@@ -19,7 +19,6 @@ use crate::math::{from_pose, from_vector, to_pose, to_vector};
 use crate::robot::controller::{seed_bank, worse, ControlContext};
 use crate::robot::kinematics::MAX_DOF;
 use crate::robot::{Controller, IkOptions, IkReport, RobotModel, RobotRig};
-use crate::solver_effort::SolverEffort;
 use crate::world::{build_world, PhysicsConfig, TableSpec, WorldColliders};
 
 pub use crate::world::{colour_code, link_shape, GROUP_OBJECT, GROUP_ROBOT, GROUP_STATIC};
@@ -43,8 +42,6 @@ pub struct Scene {
     ik: IkOptions,
     /// Warm starts for IK restarts.
     seeds: Vec<Vec<f64>>,
-    /// Which bodies get extra solver work, and when.
-    pub effort: SolverEffort,
 }
 
 /// The part of a [`Scene`] that changes during an episode, serialisable bit for bit.
@@ -83,8 +80,7 @@ impl Scene {
         let ctx =
             ControlContext { model: &robot, base: &base, ik: &ik, seeds: &seeds, period: config.control_period() };
         let controller = Controller::new(config.cartesian_control, &ctx, &q);
-        let effort = SolverEffort::new(rig.moving_bodies().collect(), rig.colliders().collect());
-        Ok(Self { world, rig, statics, config, controller, finger_cmd: open, ik, seeds, effort })
+        Ok(Self { world, rig, statics, config, controller, finger_cmd: open, ik, seeds })
     }
 
     pub fn robot(&self) -> &Arc<RobotModel> {
@@ -190,7 +186,6 @@ impl Scene {
             self.rig.set_arm_targets(&mut self.world, &q[..dof], &qd[..dof]);
             self.finger_cmd += (travel - self.finger_cmd).clamp(-finger_step, finger_step);
             self.rig.set_finger_targets(&mut self.world, self.finger_cmd);
-            self.effort.apply(&mut self.world, &self.config);
             self.world.step();
             self.rig.clamp_joint_velocities(&mut self.world);
             if self.rig.enforce_position_limits(&mut self.world) {

@@ -5,17 +5,25 @@
 //! (`envs/tests/physics.rs` measures a 20 s hold) and contacts stay shallow; what each setting
 //! buys and costs is written next to it.
 //!
-//! Substeps against PGS sweeps: rapier rebuilds and factorises the arm's 9-dof mass matrix
-//! before every solver substep (~60 % of a control step at 4 substeps, `benches/profile.sh`),
-//! while a PGS sweep inside a substep reuses it. The defaults (3 substeps of 2 sweeps; around
-//! objects 1 more substep and 8 more sweeps) keep the depths and holds of the earlier 4 substeps
-//! of 1 sweep with 8 more substeps around objects (`examples/depth_probe.rs`, 3 tasks x 20
-//! episodes: deepest object 1.7 / 2.7 / 0.5 mm against 2.1 / 1.5 / 2.5 mm, deepest robot
-//! collider 2.3 / 3.8 / 3.6 mm against 2.2 / 3.8 / 3.6 mm for lift / stack / square) at about
-//! 1.35x the adversarial steps/s (`examples/physics_sweep.rs`). Two substeps were faster again
-//! but let an arm link 22-30 mm into an object or the peg in a few episodes (measured before
-//! [`penetration_depth`] stopped trusting parry's `contact` query alone, which over-reported
-//! such grazes; not re-measured).
+//! The arm's mass matrix once per physics step: rapier rebuilds and factorises the 9-dof
+//! multibody's joint-space mass matrices before every solver substep, which was ~60 % of a
+//! control step; the patched rapier (`vendor/rapier3d/PATCH.md`) lets the substeps of a step
+//! reuse the step's first build (`MultibodyMassMatrixUpdate::EveryStep`, set here unless
+//! `PhysicsConfig::mass_matrix_every_substep`), with fresh Jacobians, velocities, free
+//! accelerations and joint constraints at every substep. What it changes is measured in
+//! `tests/mass_matrix_reuse.rs` (energy of a free chain, the arm's joint path) and
+//! `docs/physics.md` (the adversarial depths). The figures below were measured with a rebuild
+//! per substep.
+//!
+//! Substeps against PGS sweeps: a PGS sweep inside a substep reuses the substep's matrices. The
+//! defaults (3 substeps of 2 sweeps; around objects 1 more substep and 8 more sweeps) keep the
+//! depths and holds of the earlier 4 substeps of 1 sweep with 8 more substeps around objects
+//! (`examples/depth_probe.rs`, 3 tasks x 20 episodes: deepest object 1.7 / 2.7 / 0.5 mm against
+//! 2.1 / 1.5 / 2.5 mm, deepest robot collider 2.3 / 3.8 / 3.6 mm against 2.2 / 3.8 / 3.6 mm for
+//! lift / stack / square) at about 1.35x the adversarial steps/s (`examples/physics_sweep.rs`).
+//! Two substeps were faster again but let an arm link 22-30 mm into an object or the peg in a
+//! few episodes (measured before [`penetration_depth`] stopped trusting parry's `contact` query
+//! alone, which over-reported such grazes; not re-measured).
 //!
 //! The robot's island gets 2 more substeps (`robot_extra_substeps`): a finger held at its travel
 //! limit and pulled by the arm against the fixed Square peg sank 6.1, 7.3, 7.7 mm into it over
@@ -121,10 +129,6 @@ pub struct PhysicsConfig {
     /// `MultibodyMassMatrixUpdate::EveryStep`; see the module docs and
     /// `vendor/rapier3d/PATCH.md`). Slower; kept to measure what the reuse changes.
     pub mass_matrix_every_substep: bool,
-    /// Give the robot's and the objects' extra substeps and sweeps only while they press on
-    /// something (see [`crate::solver_effort`]) instead of always (robot) and whenever anything
-    /// touches an object.
-    pub extra_work_only_when_pressed: bool,
 }
 
 impl Default for PhysicsConfig {
@@ -149,7 +153,6 @@ impl Default for PhysicsConfig {
             self_collision: true,
             cartesian_control: false,
             mass_matrix_every_substep: false,
-            extra_work_only_when_pressed: true,
         }
     }
 }

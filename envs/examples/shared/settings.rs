@@ -1,5 +1,5 @@
 //! Solver settings on the command line of the physics probes (`examples/depth_probe.rs`,
-//! `examples/physics_sweep.rs`): `it=4,sub=12,pgs=1,osub=8,opgs=0,ccd=10,stab=1,rsub=0,mmsub=1,press=0`, any subset,
+//! `examples/physics_sweep.rs`): `it=4,sub=12,pgs=1,osub=8,opgs=0,ccd=10,stab=1,rsub=0,mmsub=1`, any subset,
 //! the rest from the shipped defaults (the empty string is the shipped setting).
 //!
 //! - `it`: solver substeps per physics step (`PhysicsConfig::solver_iterations`);
@@ -12,9 +12,6 @@
 //! - `rsub`: extra substeps of the robot's island (`PhysicsConfig::robot_extra_substeps`);
 //! - `mmsub`: 1 rebuilds the arm's mass matrices before every substep, 0 once per physics step
 //!   (`PhysicsConfig::mass_matrix_every_substep`);
-//! - `press`: 1 gives the extra substeps and sweeps only while a body presses on something, 0
-//!   always (robot) and whenever anything touches an object
-//!   (`PhysicsConfig::extra_work_only_when_pressed`);
 //! - `stab`: rapier's stabilisation iterations per substep (not a `PhysicsConfig` field).
 
 use equigym_envs::world::PhysicsConfig;
@@ -49,10 +46,7 @@ impl Setting {
                 "rsub" => physics.robot_extra_substeps = v,
                 "ccd" => physics.soft_ccd_prediction = v as f64 * 1e-3,
                 "mmsub" => physics.mass_matrix_every_substep = v != 0,
-                "press" => physics.extra_work_only_when_pressed = v != 0,
-                _ => {
-                    return Err(format!("unknown key {k:?} (it, sub, pgs, osub, opgs, ccd, stab, rsub, mmsub, press)"))
-                }
+                _ => return Err(format!("unknown key {k:?} (it, sub, pgs, osub, opgs, ccd, stab, rsub, mmsub)")),
             }
         }
         physics.validate().map_err(|e| e.to_string())?;

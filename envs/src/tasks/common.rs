@@ -69,9 +69,6 @@ pub fn add_boxes(
         hi = hi.sup(&(c + ext));
     }
     let half_extents = (hi - lo) * 0.5;
-    if !fixed {
-        scene.effort.add_object(body, colliders.clone(), 0);
-    }
     TaskObject { name, body, colliders, half_extents }
 }
 

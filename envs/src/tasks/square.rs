@@ -115,7 +115,8 @@ impl Task for Square {
         let nut = common::add_boxes(scene, "nut", &parts, [150, 110, 40], false);
         // Extra solver iterations on the nut let the friction of a grasp on it converge: with
         // none the expert's grip does not lift it, with 4 it slips out of the hand more often.
-        scene.effort.add_object(nut.body, nut.colliders.clone(), NUT_EXTRA_SUBSTEPS);
+        scene.world.bodies[nut.body]
+            .set_additional_solver_iterations(scene.config.object_extra_substeps + NUT_EXTRA_SUBSTEPS);
         let peg =
             common::add_boxes(scene, "peg", &[(Isometry3::identity(), Vector3::from(PEG_HALF))], [120, 120, 130], true);
         self.objects = vec![nut, peg];

@@ -310,26 +310,6 @@ impl RigidBodySet {
         Some(result)
     }
 
-    /// Sets the extra solver substeps and PGS sweeps of a rigid-body (see
-    /// [`RigidBody::set_additional_solver_iterations`] and
-    /// [`RigidBody::set_additional_pgs_iterations`]) without marking it as modified. The solver
-    /// reads both counts afresh at every step, so they need no change tracking, while a body
-    /// marked as modified has its island bookkeeping redone at the next step. Returns `false` if
-    /// there is no such body.
-    pub fn set_additional_solver_work(
-        &mut self,
-        handle: RigidBodyHandle,
-        substeps: usize,
-        pgs_iterations: usize,
-    ) -> bool {
-        let Some(rb) = self.bodies.get_mut(handle.0) else {
-            return false;
-        };
-        rb.additional_solver_iterations = substeps;
-        rb.additional_pgs_iterations = pgs_iterations;
-        true
-    }
-
     /// Gets mutable references to two different rigid bodies at once.
     ///
     /// This is useful when you need to modify two bodies simultaneously (e.g., when manually
