@@ -6,6 +6,7 @@
 
 use std::time::Instant;
 
+use equigym_envs::env::STATE_CHECKSUM_LEN;
 use equigym_envs::rng::EpisodeRng;
 use equigym_envs::{Env, EnvConfig};
 
@@ -29,7 +30,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let total = start.elapsed().as_secs_f64();
     let state = env.get_state()?;
-    let checksum: String = state[state.len() - 8..].iter().map(|b| format!("{b:02x}")).collect();
+    let checksum: String = state[state.len() - STATE_CHECKSUM_LEN..].iter().map(|b| format!("{b:02x}")).collect();
     let t = Instant::now();
     for s in 0..100 {
         env.reset(s)?;

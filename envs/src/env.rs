@@ -69,7 +69,7 @@ pub struct StepResult {
 }
 
 /// Length of the checksum that ends the bytes of a saved state.
-const STATE_CHECKSUM_LEN: usize = 8;
+pub const STATE_CHECKSUM_LEN: usize = 8;
 
 /// FNV-1a (64-bit) of a saved state's payload: a stable, dependency-free integrity check (not a
 /// defence against deliberate forgery).

@@ -90,6 +90,14 @@ pub struct MultibodyDofCoupling {
     pub offset: Real,
 }
 
+/// `lu` applied to the unit vector of `dof`, into `out`: the one routine behind both the cached
+/// columns and their fallback, so the two give the same bits.
+fn solve_unit_column(lu: &LU<Real, Dyn, Dyn>, dof: usize, out: &mut DVectorViewMut<'_, Real>) {
+    out.fill(0.0);
+    out[dof] = 1.0;
+    lu.solve_mut(out);
+}
+
 #[cfg(feature = "serde-serialize")]
 fn empty_inv_mass_columns() -> DMatrix<Real> {
     DMatrix::zeros(0, 0)
@@ -388,9 +396,7 @@ impl Multibody {
         {
             out.copy_from(&self.inv_augmented_mass_columns.column(dof));
         } else {
-            out.fill(0.0);
-            out[dof] = 1.0;
-            self.inv_augmented_mass.solve_mut(out);
+            solve_unit_column(&self.inv_augmented_mass, dof, out);
         }
     }
 
@@ -1119,9 +1125,7 @@ impl Multibody {
             }
             for k in 0..self.ndofs {
                 let mut column = self.inv_augmented_mass_columns.column_mut(k);
-                column.fill(0.0);
-                column[k] = 1.0;
-                self.inv_augmented_mass.solve_mut(&mut column);
+                solve_unit_column(&self.inv_augmented_mass, k, &mut column);
             }
         } else {
             self.inv_augmented_mass_columns = DMatrix::zeros(0, 0);
