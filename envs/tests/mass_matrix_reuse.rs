@@ -7,7 +7,9 @@
 //!   every substep (beyond a small allowance), at the arm's substep count and at a coarse step;
 //! - stability: the same chain at a coarse step of 1/60 s stays finite and bounded;
 //! - agreement: the Panda driven to the same targets by its servos follows the same joint
-//!   path within a small fraction of a degree either way.
+//!   path within a small fraction of a degree either way;
+//! - the mass matrix itself, built over each link's own Jacobian columns (`PATCH.md` part 4),
+//!   against the textbook one of a branched tree.
 
 use equigym_envs::math::rot6d;
 use equigym_envs::rng::EpisodeRng;
@@ -140,4 +142,74 @@ fn the_arm_follows_the_same_joint_path_either_way() {
     eprintln!("largest joint difference over 80 control steps: {:.2e} rad", worst);
     assert!(worst < 5e-4, "joint paths differ by {worst} rad");
     assert!(worst > 0.0, "the two settings gave the same bits: is the option wired in?");
+}
+
+/// The patched rapier builds each link's share of the multibody mass matrix over the leading
+/// columns of its Jacobian only (`vendor/rapier3d/PATCH.md` part 4). Checked against the textbook mass matrix of a planar tree with a branch: a link on a
+/// revolute joint at the origin and two children hinged at its far end, all about y, each body a
+/// ball centred on its centre of mass (inertia 2/5 m r^2 about any axis). With `q_a`, `q_b` the
+/// children's angles relative to the first link, `l` the first link's joint-to-joint length and
+/// `c` each body's joint-to-centre distance:
+/// `M11 = I1 + m1 c1^2 + sum_x [Ix + mx (l^2 + cx^2 + 2 l cx cos q_x)]`,
+/// `M1x = Ix + mx (cx^2 + l cx cos q_x)`, `Mxx = Ix + mx cx^2`, and the two children do not
+/// couple (`Mab = 0`): the second child's Jacobian has a zero column for the first, which is
+/// where a product over the wrong columns would show.
+#[test]
+fn the_multibody_mass_matrix_is_the_textbook_one_for_a_branched_tree() {
+    use rapier3d::na::{DMatrix, DVector};
+    let mut world = PhysicsWorld::new();
+    let root = world.insert_body(RigidBodyBuilder::fixed());
+    // (mass, ball radius, joint-to-centre distance); the first link's next joint is at L1.
+    let (m1, r1, c1) = (2.0f32, 0.05f32, 0.15f32);
+    let l1 = 0.3f32;
+    let children = [(1.5f32, 0.04f32, 0.12f32, 0.7f32), (0.8, 0.03, 0.2, -1.1)]; // + angle
+    let ball = |world: &mut PhysicsWorld, x: f32, m: f32, r: f32| {
+        let body = world.insert_body(RigidBodyBuilder::dynamic().translation(Vector::new(x, 0.0, 0.0)));
+        world.insert_collider(ColliderBuilder::ball(r).mass(m).collision_groups(InteractionGroups::none()), Some(body));
+        body
+    };
+    let link1 = ball(&mut world, c1, m1, r1);
+    let hinge = |a1: Vector, a2: Vector| RevoluteJointBuilder::new(Vector::Y).local_anchor1(a1).local_anchor2(a2);
+    let first = world
+        .insert_multibody_joint(root, link1, hinge(Vector::ZERO, Vector::new(-c1, 0.0, 0.0)))
+        .expect("a tree has no cycle");
+    for (m, r, c, _) in children {
+        let child = ball(&mut world, l1 + c, m, r);
+        world
+            .insert_multibody_joint(link1, child, hinge(Vector::new(l1 - c1, 0.0, 0.0), Vector::new(-c, 0.0, 0.0)))
+            .expect("a tree has no cycle");
+    }
+    let (mb, _) = world.multibody_joints.get_mut(first).expect("the first joint is in the set");
+    mb.forward_kinematics(&world.bodies, false); // settles the fixed root's (zero) dofs
+    assert_eq!(mb.ndofs(), 3);
+    mb.apply_displacements(&[0.4, children[0].3, children[1].3]);
+    mb.dof_inverse_inertia(&world.bodies); // forward kinematics, then the mass matrix
+    let inv = DMatrix::from_columns(
+        &(0..3)
+            .map(|k| {
+                let mut e = DVector::zeros(3);
+                e[k] = 1.0f32;
+                mb.inv_augmented_mass().solve(&e).expect("the mass matrix is invertible")
+            })
+            .collect::<Vec<_>>(),
+    );
+    let got = inv.try_inverse().expect("M^-1 is invertible");
+
+    let ball_inertia = |m: f32, r: f32| 0.4 * m * r * r;
+    let mut want = DMatrix::from_element(3, 3, 0.0f64);
+    want[(0, 0)] = (ball_inertia(m1, r1) + m1 * c1 * c1) as f64;
+    for (x, (m, r, c, q)) in children.iter().enumerate() {
+        let (m, i, c, l, cos) = (*m as f64, ball_inertia(*m, *r) as f64, *c as f64, l1 as f64, (*q as f64).cos());
+        want[(0, 0)] += i + m * (l * l + c * c + 2.0 * l * c * cos);
+        want[(0, x + 1)] = i + m * (c * c + l * c * cos);
+        want[(x + 1, 0)] = want[(0, x + 1)];
+        want[(x + 1, x + 1)] = i + m * c * c;
+    }
+    let scale = want.amax();
+    for a in 0..3 {
+        for b in 0..3 {
+            let err = (got[(a, b)] as f64 - want[(a, b)]).abs() / scale;
+            assert!(err < 1e-4, "M[{a},{b}] = {} against the textbook {}", got[(a, b)], want[(a, b)]);
+        }
+    }
 }

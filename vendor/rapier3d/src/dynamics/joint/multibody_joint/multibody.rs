@@ -128,7 +128,10 @@ pub struct Multibody {
     // factorisation: each joint motor, limit and dry-friction constraint of a dof needs exactly
     // that column, and rebuilds it at every substep. Not serialized (an empty cache makes the
     // constraints solve for their column again, with the same result).
-    #[cfg_attr(feature = "serde-serialize", serde(skip, default = "empty_inv_mass_columns"))]
+    #[cfg_attr(
+        feature = "serde-serialize",
+        serde(skip, default = "empty_inv_mass_columns")
+    )]
     inv_augmented_mass_columns: DMatrix<Real>,
     // The indexing sequence for moving all kinematics degrees of
     // freedoms to the end of the generalized coordinates vector.
@@ -390,7 +393,11 @@ impl Multibody {
     /// Writes `inv_augmented_mass` applied to the unit vector of `dof` into `out` (of length
     /// `ndofs`): the column cached at the last mass-matrix update, or a fresh solve when there
     /// is none (the two agree bit for bit).
-    pub(crate) fn inv_augmented_mass_unit_column(&self, dof: usize, out: &mut DVectorViewMut<'_, Real>) {
+    pub(crate) fn inv_augmented_mass_unit_column(
+        &self,
+        dof: usize,
+        out: &mut DVectorViewMut<'_, Real>,
+    ) {
         if self.inv_augmented_mass_columns.nrows() == out.nrows()
             && dof < self.inv_augmented_mass_columns.ncols()
         {
@@ -632,18 +639,20 @@ impl Multibody {
                 rb.forces.force - rb_mass * acc.linvel,
                 rb.forces.torque - gyroscopic - rb_inertia * acc.angvel,
             );
-            self.accelerations.gemv_tr(
+            // The link's Jacobian is zero past its own dofs (see `update_mass_matrix`).
+            let ncols = link.assembly_id + link.joint.ndofs();
+            self.accelerations.rows_mut(0, ncols).gemv_tr(
                 1.0,
-                &self.body_jacobians[i],
+                &self.body_jacobians[i].columns(0, ncols),
                 external_forces.as_vector(),
                 1.0,
             );
 
             if check_implicit_coriolis_divergence {
                 let applied_forces = Force::new(rb.forces.force, rb.forces.torque);
-                pos_forces.gemv_tr(
+                pos_forces.rows_mut(0, ncols).gemv_tr(
                     1.0,
-                    &self.body_jacobians[i],
+                    &self.body_jacobians[i].columns(0, ncols),
                     applied_forces.as_vector(),
                     1.0,
                 );
@@ -818,8 +827,10 @@ impl Multibody {
                 link_j.copy_from(parent_j);
 
                 {
-                    let mut link_j_v = link_j.fixed_rows_mut::<DIM>(0);
-                    let parent_j_w = parent_j.fixed_rows::<ANG_DIM>(DIM);
+                    // The parent's Jacobian is zero past the parent's own dofs.
+                    let parent_ncols = parent_link.assembly_id + parent_link.joint.ndofs();
+                    let mut link_j_v = link_j.view_mut((0, 0), (DIM, parent_ncols));
+                    let parent_j_w = parent_j.view((DIM, 0), (ANG_DIM, parent_ncols));
 
                     let shift_tr = vect_to_na(link.shift02).gcross_matrix_tr();
                     link_j_v.gemm(1.0, &shift_tr, &parent_j_w, 1.0);
@@ -840,9 +851,12 @@ impl Multibody {
             link_j_part += link_joint_j;
 
             {
+                let ncols = link.assembly_id + ndofs;
                 let link_j = &mut self.body_jacobians[i];
                 let (mut link_j_v, link_j_w) =
                     link_j.rows_range_pair_mut(0..DIM, DIM..DIM + ANG_DIM);
+                let mut link_j_v = link_j_v.columns_range_mut(0..ncols);
+                let link_j_w = link_j_w.columns_range(0..ncols);
                 let shift_tr = vect_to_na(link.shift23).gcross_matrix_tr();
                 link_j_v.gemm(1.0, &shift_tr, &link_j_w, 1.0);
             }
@@ -902,6 +916,11 @@ impl Multibody {
                 }
             }
 
+            // Every column of this link's Jacobian past its own dofs is zero: those dofs belong
+            // to links appended after it (its descendants and other branches), whose assembly
+            // ids come later. The products below skip them.
+            let ncols = link.assembly_id + link.joint.ndofs();
+
             #[allow(unused_mut)] // mut is needed for 3D but not for 2D.
             let mut augmented_inertia = rb_inertia;
 
@@ -920,10 +939,18 @@ impl Multibody {
             let rb_mass_matrix_wo_gyro = concat_rb_mass_matrix(rb_mass, rb_inertia.into());
             #[allow(clippy::useless_conversion)] // Needed in 3D, no-op in 2D
             let rb_mass_matrix = concat_rb_mass_matrix(rb_mass, augmented_inertia.into());
-            self.augmented_mass
-                .quadform(1.0, &rb_mass_matrix_wo_gyro, body_jacobian, 1.0);
-            self.acc_augmented_mass
-                .quadform(1.0, &rb_mass_matrix, body_jacobian, 1.0);
+            // Each entry is the same product as over all the columns (a quadratic form is one
+            // 6-vector dot product per entry); the skipped entries would have gained zeros.
+            // (A link without dofs above it, such as a fixed root, adds nothing.)
+            if ncols > 0 {
+                let body_jacobian = body_jacobian.columns(0, ncols);
+                self.augmented_mass
+                    .view_mut((0, 0), (ncols, ncols))
+                    .quadform(1.0, &rb_mass_matrix_wo_gyro, &body_jacobian, 1.0);
+                self.acc_augmented_mass
+                    .view_mut((0, 0), (ncols, ncols))
+                    .quadform(1.0, &rb_mass_matrix, &body_jacobian, 1.0);
+            }
 
             /*
              *
@@ -949,9 +976,16 @@ impl Multibody {
                 coriolis_v.copy_from(parent_coriolis_v);
                 coriolis_w.copy_from(parent_coriolis_w);
 
+                // The parent's terms are zero past the parent's own dofs.
+                let pcols = parent_link.assembly_id + parent_link.joint.ndofs();
+                let parent_j_w = parent_j_w.columns(0, pcols);
+                let parent_coriolis_w = parent_coriolis_w.columns(0, pcols);
+                let mut coriolis_v = coriolis_v.columns_mut(0, pcols);
+                let mut coriolis_w = coriolis_w.columns_mut(0, pcols);
+
                 // [c1 - c0].gcross() * (JDot + JDot/u * qdot)"
                 let shift_cross_tr = vect_to_na(link.shift02).gcross_matrix_tr();
-                coriolis_v.gemm(1.0, &shift_cross_tr, parent_coriolis_w, 1.0);
+                coriolis_v.gemm(1.0, &shift_cross_tr, &parent_coriolis_w, 1.0);
 
                 // JDot (but the 2.0 originates from the sum of two identical terms in JDot and JDot/u * gdot)
                 let dvel_cross = vect_to_na(
@@ -977,7 +1011,8 @@ impl Multibody {
 
                 // JDot (but the 2.0 originates from the sum of two identical terms in JDot and JDot/u * gdot)
                 if !link.joint.kinematic {
-                    let mut coriolis_v_part = coriolis_v.columns_mut(link.assembly_id, ndofs);
+                    let mut coriolis_v_part =
+                        self.coriolis_v[i].columns_mut(link.assembly_id, ndofs);
 
                     let mut tmp1 = SMatrix::<Real, SPATIAL_DIM, SPATIAL_DIM>::zeros();
                     let mut rb_joint_j = tmp1.columns_mut(0, ndofs);
@@ -993,7 +1028,8 @@ impl Multibody {
                     #[cfg(feature = "dim3")]
                     {
                         let rb_joint_j_w = rb_joint_j.fixed_rows::<ANG_DIM>(DIM);
-                        let mut coriolis_w_part = coriolis_w.columns_mut(link.assembly_id, ndofs);
+                        let mut coriolis_w_part =
+                            self.coriolis_w[i].columns_mut(link.assembly_id, ndofs);
                         coriolis_w_part.gemm(1.0, &parent_w, &rb_joint_j_w, 1.0);
                     }
                 }
@@ -1002,13 +1038,15 @@ impl Multibody {
                 self.coriolis_w[i].fill(0.0);
             }
 
-            let coriolis_v = &mut self.coriolis_v[i];
-            let coriolis_w = &mut self.coriolis_w[i];
+            // This link's terms are zero past its own dofs.
+            let mut coriolis_v = self.coriolis_v[i].columns_mut(0, ncols);
+            let coriolis_w = self.coriolis_w[i].columns(0, ncols);
+            let rb_j_w = rb_j_w.columns(0, ncols);
 
             {
                 // [c3 - c2].gcross() * (JDot + JDot/u * qdot)
                 let shift_cross_tr = vect_to_na(link.shift23).gcross_matrix_tr();
-                coriolis_v.gemm(1.0, &shift_cross_tr, coriolis_w, 1.0);
+                coriolis_v.gemm(1.0, &shift_cross_tr, &coriolis_w, 1.0);
 
                 // JDot
                 let dvel_cross = vect_to_na(rb.vels.angvel.gcross(link.shift23)).gcross_matrix_tr();
@@ -1023,15 +1061,16 @@ impl Multibody {
                 );
             }
 
-            let coriolis_v = &mut self.coriolis_v[i];
-            let coriolis_w = &mut self.coriolis_w[i];
+            let coriolis_v = self.coriolis_v[i].columns(0, ncols);
+            let coriolis_w = self.coriolis_w[i].columns(0, ncols);
 
             /*
-             * Meld with the mass matrix.
+             * Meld with the mass matrix (only the leading `ncols` columns of `i_coriolis_dt` are
+             * written and read).
              */
             {
-                let mut i_coriolis_dt_v = self.i_coriolis_dt.fixed_rows_mut::<DIM>(0);
-                i_coriolis_dt_v.copy_from(coriolis_v);
+                let mut i_coriolis_dt_v = self.i_coriolis_dt.view_mut((0, 0), (DIM, ncols));
+                i_coriolis_dt_v.copy_from(&coriolis_v);
                 let rb_mass_dt = vect_to_na(rb_mass * dt);
                 i_coriolis_dt_v
                     .column_iter_mut()
@@ -1040,18 +1079,24 @@ impl Multibody {
 
             #[cfg(feature = "dim2")]
             {
-                let mut i_coriolis_dt_w = self.i_coriolis_dt.fixed_rows_mut::<ANG_DIM>(DIM);
+                let mut i_coriolis_dt_w = self.i_coriolis_dt.view_mut((DIM, 0), (ANG_DIM, ncols));
                 // NOTE: this is just an axpy, but on row columns.
-                i_coriolis_dt_w.zip_apply(coriolis_w, |o, x| *o = x * dt * rb_inertia);
+                i_coriolis_dt_w.zip_apply(&coriolis_w, |o, x| *o = x * dt * rb_inertia);
             }
             #[cfg(feature = "dim3")]
             {
-                let mut i_coriolis_dt_w = self.i_coriolis_dt.fixed_rows_mut::<ANG_DIM>(DIM);
-                i_coriolis_dt_w.gemm(dt, &mat_to_na(rb_inertia), coriolis_w, 0.0);
+                let mut i_coriolis_dt_w = self.i_coriolis_dt.view_mut((DIM, 0), (ANG_DIM, ncols));
+                i_coriolis_dt_w.gemm(dt, &mat_to_na(rb_inertia), &coriolis_w, 0.0);
             }
 
             self.acc_augmented_mass
-                .gemm_tr(1.0, rb_j, &self.i_coriolis_dt, 1.0);
+                .view_mut((0, 0), (ncols, ncols))
+                .gemm_tr(
+                    1.0,
+                    &rb_j.columns(0, ncols),
+                    &self.i_coriolis_dt.columns(0, ncols),
+                    1.0,
+                );
         }
 
         /*
@@ -1274,6 +1319,7 @@ impl Multibody {
                 cfm_coeff: 0.0,
                 cfm_gain: 0.0,
                 writeback_id: WritebackId::Dof(0),
+                unit_dof2: u32::MAX,
             };
 
             j_id += 2 * ndofs;

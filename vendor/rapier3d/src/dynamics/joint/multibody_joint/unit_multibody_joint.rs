@@ -66,6 +66,7 @@ pub fn unit_joint_limit_constraint(
         cfm_coeff,
         cfm_gain,
         writeback_id: WritebackId::Limit(dof_id),
+        unit_dof2: (dof_id + link.assembly_id) as u32,
     };
 
     constraints[*insert_at] = constraint;
@@ -125,6 +126,7 @@ pub fn unit_joint_friction_constraint(
         cfm_coeff,
         cfm_gain,
         writeback_id: WritebackId::Friction(dof_id),
+        unit_dof2: (dof_id + link.assembly_id) as u32,
     };
 
     constraints[*insert_at] = constraint;
@@ -198,6 +200,7 @@ pub fn unit_joint_motor_constraint(
         rhs: rhs_wo_bias,
         rhs_wo_bias,
         writeback_id: WritebackId::Limit(dof_id),
+        unit_dof2: (dof_id + link.assembly_id) as u32,
     };
 
     constraints[*insert_at] = constraint;

@@ -30,6 +30,12 @@ pub struct GenericJointConstraint {
     pub cfm_gain: Real,
 
     pub writeback_id: WritebackId,
+
+    /// `u32::MAX`, or the generalized coordinate of body 2 whose unit vector is body 2's whole
+    /// Jacobian (the internal motor, limit and friction rows of a multibody joint, with no
+    /// body 1). Then `J2 v2` is that one entry of `v2`, bit for bit the dense product (every
+    /// other term is a zero), and [`Self::solve`] skips the dense dot products.
+    pub unit_dof2: u32,
 }
 
 impl Default for GenericJointConstraint {
@@ -58,6 +64,7 @@ impl GenericJointConstraint {
             cfm_coeff: Real::MAX,
             cfm_gain: Real::MAX,
             writeback_id: WritebackId::Dof(0),
+            unit_dof2: u32::MAX,
         }
     }
 
@@ -278,6 +285,24 @@ impl GenericJointConstraint {
         generic_solver_vels: &mut DVector,
     ) {
         let jacobians = jacobians.as_slice();
+
+        if self.unit_dof2 != u32::MAX && self.solver_vel1 == u32::MAX && !self.is_rigid_body2 {
+            // J1 is empty and J2 = e_k: the dense path computes `rhs + (v2[k] - 0)`.
+            let vel2 = generic_solver_vels[self.solver_vel2 as usize + self.unit_dof2 as usize];
+            let dvel = self.rhs + (vel2 - 0.0);
+            let total_impulse = na::clamp(
+                self.impulse + self.inv_lhs * (dvel - self.cfm_gain * self.impulse),
+                self.impulse_bounds[0],
+                self.impulse_bounds[1],
+            );
+            let delta_impulse = total_impulse - self.impulse;
+            self.impulse = total_impulse;
+
+            let mut solver_vel2 = self.solver_vel2_mut(solver_vels, generic_solver_vels);
+            let wj2 = DVectorView::from_slice(&jacobians[self.wj_id2()..], self.ndofs2);
+            solver_vel2.axpy(-delta_impulse, &wj2, 1.0);
+            return;
+        }
 
         let solver_vel1 = self.solver_vel1(solver_vels, generic_solver_vels);
         let j1 = DVectorView::from_slice(&jacobians[self.j_id1..], self.ndofs1);
