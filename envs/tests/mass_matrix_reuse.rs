@@ -199,7 +199,7 @@ fn the_multibody_mass_matrix_is_the_textbook_one_for_a_branched_tree() {
     let mut want = DMatrix::from_element(3, 3, 0.0f64);
     want[(0, 0)] = (ball_inertia(m1, r1) + m1 * c1 * c1) as f64;
     for (x, (m, r, c, q)) in children.iter().enumerate() {
-        let (m, i, c, l, cos) = (*m as f64, ball_inertia(*m, *r) as f64, *c as f64, l1 as f64, (*q as f64).cos());
+        let (m, i, c, l, cos) = (*m as f64, ball_inertia(*m, *r) as f64, *c as f64, l1 as f64, libm::cos(*q as f64));
         want[(0, 0)] += i + m * (l * l + c * c + 2.0 * l * c * cos);
         want[(0, x + 1)] = i + m * (c * c + l * c * cos);
         want[(x + 1, 0)] = want[(0, x + 1)];
