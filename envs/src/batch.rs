@@ -370,14 +370,6 @@ impl<E: BatchMember, D: ActionDecoder> BatchEnv<E, D> {
     pub fn obs(&self, i: usize) -> Option<&[f64]> {
         self.slots.get(i).map(|s| &s.obs[..])
     }
-    /// Write all observations, row-major (B x obs dim), converting with `f`.
-    pub fn write_obs<T>(&self, out: &mut [T], f: impl Fn(f64) -> T) {
-        for (slot, row) in self.slots.iter().zip(out.chunks_exact_mut(self.obs_dim)) {
-            for (o, &x) in row.iter_mut().zip(&slot.obs) {
-                *o = f(x);
-            }
-        }
-    }
     /// What environment `i`'s last step reported (all zero/false where it was reset in NextStep
     /// mode); `None` when `i` is out of range.
     pub fn last_step(&self, i: usize) -> Option<MemberStep> {

@@ -22,8 +22,6 @@ import numpy.typing as npt
 
 from equigym import _core
 
-SPACES = ("observation", "action", "chunk", "latent")
-
 
 @dataclass(frozen=True)
 class Field:

@@ -171,10 +171,3 @@ pub struct PlacementRange {
     pub y: (f64, f64),
     pub yaw: (f64, f64),
 }
-
-impl PlacementRange {
-    /// Square xy range of half-width `r` around the table centre with a yaw range.
-    pub fn square(r: f64, yaw: (f64, f64)) -> Self {
-        Self { x: (-r, r), y: (-r, r), yaw }
-    }
-}

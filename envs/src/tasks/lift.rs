@@ -152,11 +152,10 @@ impl Task for Lift {
         vec![self.half_size]
     }
 
-    fn set_episode_params(&mut self, scene: &mut Scene, params: &[f64]) -> Result<()> {
+    fn set_episode_params(&mut self, _scene: &mut Scene, params: &[f64]) -> Result<()> {
         match params {
             [h] if h.is_finite() && *h > 0.0 && *h < 0.1 => {
                 // The collider already has this size: it is part of the restored physics state.
-                let _ = scene;
                 self.half_size = *h;
                 self.objects[0].half_extents = Vector3::repeat(*h);
                 Ok(())
