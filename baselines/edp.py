@@ -70,6 +70,9 @@ class EDPConfig:
     weight_decay: float = 1e-6
     ema_decay: float = 0.995
     seed: int = 0
+    #: Observations the policy conditions on: 1 = o_t; 2 = o_t and its change o_t - o_{t-1}
+    #: over the last control step (the arm lags its commands and o_t holds no velocities).
+    obs_history: int = 1
     variant: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -193,9 +196,26 @@ def count_params(m: tnn.Module) -> int:
     return sum(p.numel() for p in m.parameters() if p.requires_grad)
 
 
+def conditioning_blocks(sym: Symmetry, history: int) -> list[tuple[int, list[int]]]:
+    """The representation blocks of the policy's conditioning: the observation's, once per
+    observation in the history (a change of observation transforms as the observation)."""
+    dim = sym.dim("observation")
+    return [(f, [i + k * dim for i in idx]) for k in range(history) for f, idx in sym.blocks("observation")]
+
+
+def conditioning(obs: np.ndarray, prev: np.ndarray | None, history: int) -> np.ndarray:
+    """The policy's input for observations ``obs`` (batch x obs_dim) and those one control step
+    before (``prev``; None or equal to ``obs`` at an episode's first step)."""
+    if history == 1:
+        return obs
+    if history != 2:
+        raise ValueError(f"obs_history must be 1 or 2, got {history}")
+    return np.concatenate([obs, obs - (obs if prev is None else prev)], axis=-1)
+
+
 def build_net(cfg: EDPConfig, sym: Symmetry) -> tnn.Module:
-    obs_blocks, chunk_blocks = sym.blocks("observation"), sym.blocks("chunk")
-    in_dim = sym.dim("observation") + sym.dim("chunk") + cfg.time_dim
+    obs_blocks, chunk_blocks = conditioning_blocks(sym, cfg.obs_history), sym.blocks("chunk")
+    in_dim = cfg.obs_history * sym.dim("observation") + sym.dim("chunk") + cfg.time_dim
     equi = EquivariantNoiseNet(
         obs_blocks, chunk_blocks, cfg.time_dim, cfg.hidden_fields, cfg.hidden_layers, cfg.group_order
     )
@@ -210,15 +230,18 @@ def build_net(cfg: EDPConfig, sym: Symmetry) -> tnn.Module:
 
 
 # -- data ----------------------------------------------------------------------------------
-def chunk_dataset(demos: list[dict[str, Any]], chunk_len: int) -> tuple[np.ndarray, np.ndarray]:
-    """(obs_t, actions[t : t + chunk_len]) pairs; chunks past the end repeat the last action."""
+def chunk_dataset(demos: list[dict[str, Any]], chunk_len: int, history: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(conditioning_t, actions[t : t + chunk_len]) pairs; chunks past the end repeat the last
+    action; the conditioning is ``conditioning`` of o_t and o_{t-1} (o_0 at t = 0)."""
     obs, chunks = [], []
     for d in demos:
         a = d["actions"]
         T = len(a)
+        o = np.asarray(d["obs"], dtype=np.float64)
+        cond = conditioning(o, np.concatenate([o[:1], o[:-1]]), history)
         for t in range(T):
             idx = np.minimum(np.arange(t, t + chunk_len), T - 1)
-            obs.append(d["obs"][t])
+            obs.append(cond[t])
             chunks.append(a[idx].reshape(-1))
     return np.asarray(obs, dtype=np.float64), np.asarray(chunks, dtype=np.float64)
 
@@ -261,8 +284,8 @@ def train(
         cfg.task = data["task"]
     cfg.variant = data["env_args"].get("env_kwargs", {}).get("variant")
     sym = Symmetry(cfg.task, group=f"C{cfg.group_order}", chunk_len=cfg.chunk_len)
-    obs, chunks = chunk_dataset(data["demos"], cfg.chunk_len)
-    obs_off, obs_scale = fit_normalizer(obs, sym.blocks("observation"))
+    obs, chunks = chunk_dataset(data["demos"], cfg.chunk_len, cfg.obs_history)
+    obs_off, obs_scale = fit_normalizer(obs, conditioning_blocks(sym, cfg.obs_history))
     act_off, act_scale = fit_normalizer(chunks.reshape(-1, 10), sym.blocks("action"))
     act_off, act_scale = np.tile(act_off, cfg.chunk_len), np.tile(act_scale, cfg.chunk_len)
     x_obs = torch.tensor((obs - obs_off) / obs_scale, dtype=torch.float32)
@@ -411,6 +434,7 @@ def export(out, cfg: EDPConfig, sym: Symmetry, layers, obs_off, obs_scale, act_o
         "task": cfg.task,
         "variant": cfg.variant or "",
         "chunk_len": str(cfg.chunk_len),
+        "obs_history": str(cfg.obs_history),
         "num_layers": str(len(layers)),
         "activation": "relu",
         "num_train_timesteps": str(cfg.num_train_timesteps),
@@ -569,6 +593,111 @@ def predictability(
     return rows
 
 
+#: Height (m) above its rest height at which a carried object counts as lifted.
+LIFTED = 0.01
+#: Commanded gripper width (m) above which a loss of grasp counts as the policy opening the hand.
+OPENED_WIDTH = 0.035
+#: Distance (m) from the place target within which a loss counts as "over the target".
+OVER_TARGET = 0.03
+#: The carried object's height and its horizontal distance to the place target, per task.
+_FAILURE_TERMS = {
+    "stack": ("cubeA_height", "cubes_xy_distance"),
+    "lift": ("cube_height", None),
+    "square": ("nut_height", "nut_peg_xy_distance"),
+}
+
+
+def failures(
+    policy_path: str | Path, episodes: int = 60, seed: int = 0, ddim_steps: int | None = None
+) -> dict[str, Any]:
+    """How the base policy fails, episode by episode, on the pinned evaluation starts: each
+    episode is one of ``success``, ``never lifted``, ``held at horizon`` (lifted and still
+    grasped at the end), ``opened away`` / ``opened over target`` (the grasp was lost on a step
+    whose chunk commanded the hand open, away from or over the place target), ``slipped`` (lost
+    while commanded closed); Square also has ``on target, not let go`` (the nut sits on the peg
+    at the horizon but the hand has not left it). The latent noise is N(0, I) clipped to the
+    bound, drawn from ``seed`` (the same distribution as ``eval``, not the same draws); the
+    policy's conditioning (``obs_history``) is built here, so history policies run too."""
+    from equigym import _core
+
+    pol = _core.DiffusionPolicy(str(policy_path))
+    task = pol.task
+    if task not in _FAILURE_TERMS:
+        raise ValueError(f"failures knows {sorted(_FAILURE_TERMS)}, not {task}")
+    height_term, target_term = _FAILURE_TERMS[task]
+    meta = pol.metadata
+    envs = [_core.Env(task, variant=meta.get("variant") or None) for _ in range(episodes)]
+    obs = np.stack([e.reset(_core.EVAL_SEED + k) for k, e in enumerate(envs)])
+    prev = obs.copy()
+    history = int(meta.get("obs_history", "1"))
+    rng = np.random.default_rng(seed)
+    bound = 1.5
+    steps = ddim_steps or pol.default_ddim_steps
+    live = np.ones(episodes, bool)
+    outcome: list[str | None] = [None] * episodes
+    lifted = np.zeros(episodes, bool)
+    grasped = np.zeros(episodes, bool)
+    on_target = np.zeros(episodes, bool)
+    horizon = envs[0].horizon
+    t = 0
+    while live.any() and t < horizon:
+        idx = np.flatnonzero(live)
+        w = np.clip(rng.standard_normal((len(idx), pol.action_dim)), -bound, bound)
+        cond = conditioning(obs[idx], prev[idx], history)
+        chunks = pol.sample(cond, w, steps).reshape(len(idx), pol.chunk_len, 10)
+        for j, i in enumerate(idx):
+            for a in chunks[j]:
+                prev[i] = obs[i]
+                o, _, _, truncated, info = envs[i].step(a)
+                obs[i] = o
+                g = info["grasped"] > 0.5
+                h = info[height_term]
+                if info["success"]:
+                    outcome[i] = "success"
+                elif grasped[i] and not g and lifted[i]:
+                    far = target_term is None or info[target_term] > OVER_TARGET
+                    if a[9] > OPENED_WIDTH:
+                        outcome[i] = "opened away" if far else "opened over target"
+                    else:
+                        outcome[i] = "slipped"
+                grasped[i] = g
+                on_target[i] = info.get("on_peg", 0.0) > 0.5
+                lifted[i] |= g and h > LIFTED
+                if outcome[i] is not None or truncated:
+                    live[i] = False
+                    break
+        t += pol.chunk_len
+    for i in range(episodes):
+        if outcome[i] is None:
+            if on_target[i]:
+                outcome[i] = "on target, not let go"
+            else:
+                outcome[i] = "held at horizon" if grasped[i] and lifted[i] else "never lifted"
+    counts = {k: outcome.count(k) for k in FAILURE_KINDS if k in outcome}
+    low, high = _core.wilson(counts.get("success", 0), episodes)
+    return {
+        "task": task,
+        "episodes": episodes,
+        "success_rate": counts.get("success", 0) / episodes,
+        "low": low,
+        "high": high,
+        "counts": counts,
+        "outcomes": outcome,
+    }
+
+
+#: The outcomes ``failures`` tells apart.
+FAILURE_KINDS = (
+    "success",
+    "never lifted",
+    "opened away",
+    "opened over target",
+    "slipped",
+    "held at horizon",
+    "on target, not let go",
+)
+
+
 def _eval_seed() -> int:
     from equigym import _core
 
@@ -652,6 +781,7 @@ def main(argv: list[str] | None = None) -> None:
     t.add_argument("--batch-size", type=int, default=EDPConfig.batch_size)
     t.add_argument("--lr", type=float, default=EDPConfig.lr)
     t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--obs-history", type=int, choices=(1, 2), default=EDPConfig.obs_history)
     t.add_argument("--fresh", action="store_true", help="ignore a matching <out>.ckpt instead of resuming it")
     e = sub.add_parser("eval", help="base-policy success (w ~ N(0, scale^2 I)) on the pinned evaluation starts")
     e.add_argument("--policy", required=True)
@@ -670,8 +800,16 @@ def main(argv: list[str] | None = None) -> None:
     q = sub.add_parser("predictability", help="held-out error of the demo action regressed on the observation")
     q.add_argument("--demos", required=True)
     q.add_argument("--histories", nargs="+", type=int, default=[0, 1, 2])
+    f = sub.add_parser("failures", help="how the base policy loses the object (Lift, Stack), pinned starts")
+    f.add_argument("--policy", required=True)
+    f.add_argument("--episodes", type=int, default=60)
+    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--ddim-steps", type=int, default=None)
     a = p.parse_args(argv)
-    if a.cmd == "predictability":
+    if a.cmd == "failures":
+        res = failures(a.policy, a.episodes, a.seed, a.ddim_steps)
+        print(json.dumps({k: v for k, v in res.items() if k != "outcomes"}))
+    elif a.cmd == "predictability":
         for row in predictability(a.demos, tuple(a.histories)):
             print(json.dumps({**row, "nmse": [round(v, 4) for v in row["nmse"]]}))
     elif a.cmd == "report":
@@ -693,6 +831,7 @@ def main(argv: list[str] | None = None) -> None:
             batch_size=a.batch_size,
             lr=a.lr,
             seed=a.seed,
+            obs_history=a.obs_history,
         )
         print(json.dumps(train(cfg, a.demos, a.out, resume=not a.fresh)))
 

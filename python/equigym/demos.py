@@ -2,6 +2,13 @@
 
     python -m equigym.demos --task lift --episodes 3 --out data/lift_3.hdf5 [--variant D1]
         [--position-noise 0.002 --yaw-noise 0.05] [--keep-failures]
+        [--execution-noise 0.01 --execution-noise-corr 0.9]
+
+Two kinds of noise. ``--position-noise`` perturbs the expert's own command, and the perturbed
+command is what is recorded (noisy demonstrations). ``--execution-noise`` is DART's (Laskey et
+al., 2017): the env executes the expert's command plus AR(1) Gaussian noise on the position
+(stationary std ``sigma``, step correlation ``corr``), and the clean command is recorded, so the
+demos visit states off the expert's path and label them with the expert's correction.
 
 Layout: ``data`` (attrs ``env_args`` = JSON with ``env_name``, ``env_kwargs``; ``total``), then
 ``data/demo_<i>`` (attrs ``num_samples``, ``seed``, ``success``) holding ``obs/<field>``
@@ -43,6 +50,8 @@ def record(
     max_attempts: int | None = None,
     progress: bool = True,
     hold_steps: int = 0,
+    execution_noise: float = 0.0,
+    execution_noise_corr: float = 0.9,
 ) -> dict[str, Any]:
     """Record ``episodes`` demonstrations (successful ones unless ``keep_failures``).
 
@@ -57,6 +66,11 @@ def record(
     """
     if hold_steps < 0:
         raise ValueError(f"hold_steps must be >= 0, got {hold_steps}")
+    if not (execution_noise >= 0.0 and 0.0 <= execution_noise_corr < 1.0):
+        raise ValueError(
+            f"execution_noise must be >= 0 and execution_noise_corr in [0, 1), got "
+            f"{execution_noise}, {execution_noise_corr}"
+        )
     h5py = _h5py()
     env = _core.Env(task, variant=variant)
     expert = _core.Expert(task, position_noise=position_noise, yaw_noise=yaw_noise)
@@ -77,7 +91,15 @@ def record(
         data.attrs["env_args"] = json.dumps(
             {"env_name": TASK_ENV_IDS[task], "type": "equigym", "env_kwargs": env_kwargs}
         )
-        data.attrs["expert"] = json.dumps({"position_noise": position_noise, "yaw_noise": yaw_noise})
+        data.attrs["expert"] = json.dumps(
+            {
+                "position_noise": position_noise,
+                "yaw_noise": yaw_noise,
+                "execution_noise": execution_noise,
+                "execution_noise_corr": execution_noise_corr,
+            }
+        )
+        innovation = execution_noise * np.sqrt(1.0 - execution_noise_corr**2)
         while kept < episodes and tried < max_attempts:
             ep_seed = seed + tried
             tried += 1
@@ -85,9 +107,16 @@ def record(
             expert.reset(env, ep_seed)
             actions, rewards, success = [], [], False
             since_success = None
+            # The execution noise's own stream of this episode (the expert's is apart, in Rust).
+            rng = np.random.default_rng([ep_seed, 0xDA27])
+            offset = rng.normal(0.0, execution_noise, 3)
             for _ in range(env.horizon):
                 a = expert.act(env)
-                o, r, _, truncated, info = env.step(a)
+                executed = np.array(a, dtype=np.float64)
+                if execution_noise > 0.0:
+                    executed[:3] += offset
+                    offset = execution_noise_corr * offset + rng.normal(0.0, innovation, 3)
+                o, r, _, truncated, info = env.step(executed)
                 actions.append(a)
                 rewards.append(r)
                 if info["success"] and since_success is None:
@@ -166,6 +195,10 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--keep-failures", action="store_true")
     p.add_argument("--hold-steps", type=int, default=0, help="expert steps recorded after the first success")
+    p.add_argument(
+        "--execution-noise", type=float, default=0.0, help="DART: std (m) of AR(1) noise on the executed position"
+    )
+    p.add_argument("--execution-noise-corr", type=float, default=0.9, help="its correlation from step to step")
     a = p.parse_args(argv)
     summary = record(
         a.task,
@@ -177,6 +210,8 @@ def main(argv: list[str] | None = None) -> None:
         seed=a.seed,
         keep_failures=a.keep_failures,
         hold_steps=a.hold_steps,
+        execution_noise=a.execution_noise,
+        execution_noise_corr=a.execution_noise_corr,
     )
     print(json.dumps(summary))
 
