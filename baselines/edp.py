@@ -611,13 +611,14 @@ def failures(
     policy_path: str | Path, episodes: int = 60, seed: int = 0, ddim_steps: int | None = None
 ) -> dict[str, Any]:
     """How the base policy fails, episode by episode, on the pinned evaluation starts: each
-    episode is one of ``success``, ``never lifted``, ``held at horizon`` (lifted and still
-    grasped at the end), ``opened away`` / ``opened over target`` (the grasp was lost on a step
-    whose chunk commanded the hand open, away from or over the place target), ``slipped`` (lost
-    while commanded closed); Square also has ``on target, not let go`` (the nut sits on the peg
+    episode runs to success or the horizon and is one of ``success``, ``never lifted``, ``held
+    at horizon`` (lifted and still grasped at the end), ``opened away`` / ``opened over target``
+    (its last loss of a lifted object was on a step whose chunk commanded the hand open, away
+    from or over the place target), ``slipped`` (lost while commanded closed); Square also has ``on target, not let go`` (the nut sits on the peg
     at the horizon but the hand has not left it). The latent noise is N(0, I) clipped to the
     bound, drawn from ``seed`` (the same distribution as ``eval``, not the same draws); the
-    policy's conditioning (``obs_history``) is built here, so history policies run too."""
+    policy's conditioning (``obs_history``) is built here, so history policies run too.
+    ``successes_after_a_drop`` counts successes that regrasped after a drop."""
     from equigym import _core
 
     pol = _core.DiffusionPolicy(str(policy_path))
@@ -638,6 +639,10 @@ def failures(
     lifted = np.zeros(episodes, bool)
     grasped = np.zeros(episodes, bool)
     on_target = np.zeros(episodes, bool)
+    # The most recent loss of a lifted object (an episode goes on after one: the policy may
+    # regrasp), and the number of drops (losses away from the target or while closed).
+    last_loss: list[str | None] = [None] * episodes
+    losses = np.zeros(episodes, int)
     horizon = envs[0].horizon
     t = 0
     while live.any() and t < horizon:
@@ -651,28 +656,32 @@ def failures(
                 o, _, _, truncated, info = envs[i].step(a)
                 obs[i] = o
                 g = info["grasped"] > 0.5
-                h = info[height_term]
-                if info["success"]:
-                    outcome[i] = "success"
-                elif grasped[i] and not g and lifted[i]:
+                if grasped[i] and not g and lifted[i]:
                     far = target_term is None or info[target_term] > OVER_TARGET
                     if a[9] > OPENED_WIDTH:
-                        outcome[i] = "opened away" if far else "opened over target"
+                        last_loss[i] = "opened away" if far else "opened over target"
                     else:
-                        outcome[i] = "slipped"
+                        last_loss[i] = "slipped"
+                    losses[i] += last_loss[i] != "opened over target"
+                    lifted[i] = False
                 grasped[i] = g
                 on_target[i] = info.get("on_peg", 0.0) > 0.5
-                lifted[i] |= g and h > LIFTED
+                lifted[i] |= g and info[height_term] > LIFTED
+                if info["success"]:
+                    outcome[i] = "success"
                 if outcome[i] is not None or truncated:
                     live[i] = False
                     break
         t += pol.chunk_len
     for i in range(episodes):
-        if outcome[i] is None:
-            if on_target[i]:
-                outcome[i] = "on target, not let go"
-            else:
-                outcome[i] = "held at horizon" if grasped[i] and lifted[i] else "never lifted"
+        if outcome[i] is not None:
+            continue
+        if on_target[i]:
+            outcome[i] = "on target, not let go"
+        elif grasped[i] and lifted[i]:
+            outcome[i] = "held at horizon"
+        else:
+            outcome[i] = last_loss[i] or "never lifted"
     counts = {k: outcome.count(k) for k in FAILURE_KINDS if k in outcome}
     low, high = _core.wilson(counts.get("success", 0), episodes)
     return {
@@ -682,6 +691,7 @@ def failures(
         "low": low,
         "high": high,
         "counts": counts,
+        "successes_after_a_drop": int(sum(o == "success" and n > 0 for o, n in zip(outcome, losses))),
         "outcomes": outcome,
     }
 
