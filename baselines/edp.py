@@ -643,6 +643,7 @@ def failures(
     # regrasp), and the number of drops (losses away from the target or while closed).
     last_loss: list[str | None] = [None] * episodes
     losses = np.zeros(episodes, int)
+    loss_where: list[tuple[float, float] | None] = [None] * episodes
     horizon = envs[0].horizon
     t = 0
     while live.any() and t < horizon:
@@ -663,6 +664,7 @@ def failures(
                     else:
                         last_loss[i] = "slipped"
                     losses[i] += last_loss[i] != "opened over target"
+                    loss_where[i] = (info[target_term] if target_term else float("nan"), info[height_term])
                     lifted[i] = False
                 grasped[i] = g
                 on_target[i] = info.get("on_peg", 0.0) > 0.5
@@ -693,6 +695,9 @@ def failures(
         "counts": counts,
         "successes_after_a_drop": int(sum(o == "success" and n > 0 for o, n in zip(outcome, losses))),
         "outcomes": outcome,
+        # Per episode: the place target's horizontal distance and the object's height (m) at its
+        # last loss (None if it was never lost).
+        "last_loss_at": loss_where,
     }
 
 
@@ -818,7 +823,7 @@ def main(argv: list[str] | None = None) -> None:
     a = p.parse_args(argv)
     if a.cmd == "failures":
         res = failures(a.policy, a.episodes, a.seed, a.ddim_steps)
-        print(json.dumps({k: v for k, v in res.items() if k != "outcomes"}))
+        print(json.dumps({k: v for k, v in res.items() if k not in ("outcomes", "last_loss_at")}))
     elif a.cmd == "predictability":
         for row in predictability(a.demos, tuple(a.histories)):
             print(json.dumps({**row, "nmse": [round(v, 4) for v in row["nmse"]]}))
