@@ -371,6 +371,9 @@ def test_history_conditioned_policy_stays_equivariant(lift_demos, tmp_path):
     )
     policy = DiffusionPolicy(out)
     assert policy.metadata["obs_history"] == "2"
+    # The latent environments hold one observation: they refuse the file, saying why.
+    with pytest.raises(PolicyError, match="obs_history"):
+        equigym._core.LatentEnv("lift", str(out))
     sym = Symmetry("lift")
     env = equigym.CoreEnv("lift")
     obs = np.stack([env.reset(s) for s in range(4)])

@@ -231,6 +231,18 @@ impl DiffusionPolicy {
 
     /// Check that the policy fits an observation layout (the task's).
     pub fn check_layout(&self, task: &str, layout: &Layout) -> Result<()> {
+        // The trainer's `--obs-history 2` conditions on the change of observation too; the
+        // latent environments hold one observation, so such a file runs only in the trainer's
+        // own rollouts (`python -m baselines.edp failures`).
+        if let Some(h) = self.metadata.get("obs_history").filter(|h| h.as_str() != "1") {
+            return Err(Error::Policy {
+                path: self.metadata.get("path").cloned().unwrap_or_else(|| "policy".into()),
+                reason: format!(
+                    "conditions on {h} observations (obs_history); the latent environments give one \
+                     (run it with `python -m baselines.edp failures`)"
+                ),
+            });
+        }
         if task != self.task || layout.dim() != self.obs_dim() {
             return Err(Error::Policy {
                 path: self.metadata.get("path").cloned().unwrap_or_else(|| "policy".into()),
