@@ -609,8 +609,19 @@ _FAILURE_TERMS = {
 }
 
 
+#: First start of the validation starts (``VALIDATION_SEED + k``): disjoint from the demos (seeds
+#: below 1000), the pinned evaluation starts (``EVAL_SEED + k``) and the steerability
+#: diagnostic's (3,000,000 + k), so that choosing among trained policies on them leaves the
+#: evaluation starts unbiased.
+VALIDATION_SEED = 5_000_000
+
+
 def failures(
-    policy_path: str | Path, episodes: int = 60, seed: int = 0, ddim_steps: int | None = None
+    policy_path: str | Path,
+    episodes: int = 60,
+    seed: int = 0,
+    ddim_steps: int | None = None,
+    first_start: int | None = None,
 ) -> dict[str, Any]:
     """How the base policy fails, episode by episode, on the pinned evaluation starts: each
     episode runs to success or the horizon and is one of ``success``, ``never lifted``, ``held
@@ -620,7 +631,8 @@ def failures(
     at the horizon but the hand has not left it). The latent noise is N(0, I) clipped to the
     bound, drawn from ``seed`` (the same distribution as ``eval``, not the same draws); the
     policy's conditioning (``obs_history``) is built here, so history policies run too.
-    ``successes_after_a_drop`` counts successes that regrasped after a drop."""
+    ``successes_after_a_drop`` counts successes that regrasped after a drop. ``first_start``
+    (default ``EVAL_SEED``) moves the starts, e.g. to the validation starts ``VALIDATION_SEED``."""
     from equigym import _core
 
     pol = _core.DiffusionPolicy(str(policy_path))
@@ -630,7 +642,8 @@ def failures(
     height_term, target_term = _FAILURE_TERMS[task]
     meta = pol.metadata
     envs = [_core.Env(task, variant=meta.get("variant") or None) for _ in range(episodes)]
-    obs = np.stack([e.reset(_core.EVAL_SEED + k) for k, e in enumerate(envs)])
+    first = _core.EVAL_SEED if first_start is None else first_start
+    obs = np.stack([e.reset(first + k) for k, e in enumerate(envs)])
     prev = obs.copy()
     history = int(meta.get("obs_history", "1"))
     rng = np.random.default_rng(seed)
@@ -690,6 +703,7 @@ def failures(
     low, high = _core.wilson(counts.get("success", 0), episodes)
     return {
         "task": task,
+        "first_start": first,
         "episodes": episodes,
         "success_rate": counts.get("success", 0) / episodes,
         "low": low,
@@ -822,9 +836,12 @@ def main(argv: list[str] | None = None) -> None:
     f.add_argument("--episodes", type=int, default=60)
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--ddim-steps", type=int, default=None)
+    f.add_argument(
+        "--validation", action="store_true", help=f"on the validation starts ({VALIDATION_SEED} + k), for model choice"
+    )
     a = p.parse_args(argv)
     if a.cmd == "failures":
-        res = failures(a.policy, a.episodes, a.seed, a.ddim_steps)
+        res = failures(a.policy, a.episodes, a.seed, a.ddim_steps, VALIDATION_SEED if a.validation else None)
         print(json.dumps({k: v for k, v in res.items() if k not in ("outcomes", "last_loss_at")}))
     elif a.cmd == "predictability":
         for row in predictability(a.demos, tuple(a.histories)):

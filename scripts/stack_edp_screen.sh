@@ -4,7 +4,8 @@
 # step of observation history, and on 100 DART demos (execution noise 5 and 10 mm); each policy
 # evaluated on the 200 pinned starts (`baselines.edp eval`) and broken down by how it loses the
 # cube (`baselines.edp failures`). Resumable: demos, trained weights and result files that
-# exist are kept. About 15 minutes per policy on one core of this 2-core machine.
+# exist are kept. About 15 minutes per policy on one core of this 2-core machine. Each policy is
+# also run on 200 validation starts (`failures --validation`): the one to ship is chosen there.
 # Usage: bash scripts/stack_edp_screen.sh [OUT] [NAME ...]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -28,10 +29,12 @@ declare -A CONFIGS=(
     [clean_300]="stack_d1_300"
     [dart005]="stack_d1_100_dart005"
     [dart005_seed1]="stack_d1_100_dart005 --seed 1"
+    [dart005_seed2]="stack_d1_100_dart005 --seed 2"
+    [dart005_seed3]="stack_d1_100_dart005 --seed 3"
     [dart01]="stack_d1_100_dart01"
 )
 NAMES=("$@")
-[ ${#NAMES[@]} -gt 0 ] || NAMES=(clean clean_history2 clean_300 dart005 dart005_seed1 dart01)
+[ ${#NAMES[@]} -gt 0 ] || NAMES=(clean clean_history2 clean_300 dart005 dart005_seed1 dart005_seed2 dart005_seed3 dart01)
 for name in "${NAMES[@]}"; do
     read -r data extra <<<"${CONFIGS[$name]}"
     policy="$RUNS/$name.safetensors"
@@ -44,20 +47,25 @@ for name in "${NAMES[@]}"; do
     fi
     [ -f "$OUT/$name.failures.json" ] || $PY -m baselines.edp failures --policy "$policy" --episodes 200 \
         >"$OUT/$name.failures.json"
+    # Model choice is made on the validation starts, never on the evaluation starts.
+    [ -f "$OUT/$name.validation.json" ] || $PY -m baselines.edp failures --policy "$policy" --episodes 200 \
+        --validation >"$OUT/$name.validation.json"
 done
 $PY - "$OUT" <<'PYEOF'
 import json, pathlib, sys
 out = pathlib.Path(sys.argv[1])
-print("| policy | eval (200 pinned starts) | failures' own draws | never lifted | opened away | slipped | held at horizon | successes after a drop |")
-print("|---|---:|---:|---:|---:|---:|---:|---:|")
+print("| policy | validation (200 starts) | eval (200 pinned starts) | failures' own draws | never lifted | opened | slipped | held at horizon | successes after a drop |")
+print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
 for f in sorted(out.glob("*.failures.json")):
     name = f.name.removesuffix(".failures.json")
     fl = json.loads(f.read_text())
     e = out / f"{name}.eval.json"
     ev = json.loads(e.read_text()) if e.exists() else None
+    v = out / f"{name}.validation.json"
+    val = json.loads(v.read_text()) if v.exists() else None
     rate = lambda r: f"{r['success_rate']:.3f} [{r['low']:.3f}, {r['high']:.3f}]"
     c = fl["counts"]
-    print(f"| {name} | {rate(ev) if ev else '-'} | {rate(fl)} | {c.get('never lifted', 0)} | "
+    print(f"| {name} | {rate(val) if val else '-'} | {rate(ev) if ev else '-'} | {rate(fl)} | {c.get('never lifted', 0)} | "
           f"{c.get('opened away', 0) + c.get('opened over target', 0)} | {c.get('slipped', 0)} | "
           f"{c.get('held at horizon', 0)} | {fl['successes_after_a_drop']} |")
 PYEOF

@@ -388,7 +388,7 @@ def test_history_conditioned_policy_stays_equivariant(lift_demos, tmp_path):
 
 
 def test_failure_breakdown_accounts_for_every_episode(tiny_policy):
-    from baselines.edp import FAILURE_KINDS, failures
+    from baselines.edp import EVAL_EPISODES, FAILURE_KINDS, VALIDATION_SEED, failures
 
     res = failures(tiny_policy, episodes=3)
     assert res["task"] == "lift" and len(res["outcomes"]) == 3
@@ -397,3 +397,7 @@ def test_failure_breakdown_accounts_for_every_episode(tiny_policy):
     assert res["low"] - 1e-12 <= res["success_rate"] <= res["high"]
     # The same noise seed gives the same outcomes (the rollouts are deterministic).
     assert failures(tiny_policy, episodes=3)["outcomes"] == res["outcomes"]
+    # Model choice runs on validation starts, apart from the pinned evaluation starts.
+    assert res["first_start"] == equigym._core.EVAL_SEED
+    assert failures(tiny_policy, episodes=1, first_start=VALIDATION_SEED)["first_start"] == VALIDATION_SEED
+    assert VALIDATION_SEED >= equigym._core.EVAL_SEED + 10 * EVAL_EPISODES
