@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# The Stack D1 base-policy screen (docs/edp.md, "Stack D1: recovery data"): the same trainer
-# (C8 EDP, 64 regular fields, 40k steps) on clean demos (100 and 300), on 100 demos with one
-# step of observation history, and on 100 DART demos (execution noise 5 and 10 mm); each policy
+# The Stack D1 base-policy screen (docs/edp.md, "Stack D1"): the same trainer (C8 EDP, 64
+# regular fields, 40k steps) on clean demos (100, two seeds; 300), on 100 demos with one step of
+# observation history, and on 100 DART demos (execution noise 5 mm, four seeds; 10 mm); each policy
 # evaluated on the 200 pinned starts (`baselines.edp eval`) and broken down by how it loses the
 # cube (`baselines.edp failures`). Resumable: demos, trained weights and result files that
 # exist are kept. About 15 minutes per policy on one core of this 2-core machine. Each policy is
@@ -25,6 +25,7 @@ demos stack_d1_100_dart01 100 0.01
 # name: demo file, extra training arguments
 declare -A CONFIGS=(
     [clean]="stack_d1_100"
+    [clean_seed1]="stack_d1_100 --seed 1"
     [clean_history2]="stack_d1_100 --obs-history 2"
     [clean_300]="stack_d1_300"
     [dart005]="stack_d1_100_dart005"
@@ -34,7 +35,7 @@ declare -A CONFIGS=(
     [dart01]="stack_d1_100_dart01"
 )
 NAMES=("$@")
-[ ${#NAMES[@]} -gt 0 ] || NAMES=(clean clean_history2 clean_300 dart005 dart005_seed1 dart005_seed2 dart005_seed3 dart01)
+[ ${#NAMES[@]} -gt 0 ] || NAMES=(clean clean_seed1 clean_history2 clean_300 dart005 dart005_seed1 dart005_seed2 dart005_seed3 dart01)
 for name in "${NAMES[@]}"; do
     read -r data extra <<<"${CONFIGS[$name]}"
     policy="$RUNS/$name.safetensors"

@@ -401,3 +401,33 @@ def test_failure_breakdown_accounts_for_every_episode(tiny_policy):
     assert res["first_start"] == equigym._core.EVAL_SEED
     assert failures(tiny_policy, episodes=1, first_start=VALIDATION_SEED)["first_start"] == VALIDATION_SEED
     assert VALIDATION_SEED >= equigym._core.EVAL_SEED + 10 * EVAL_EPISODES
+
+
+@pytest.mark.parametrize("task", ["lift", "stack", "square"])
+def test_shipped_policies_are_equivariant_and_match_the_trainers_export(task):
+    # On real states (resets of the policy's own variant, then a few steps of it) and random
+    # noises: rotating the state and the noise rotates the chunk, to 1e-4; and the Rust runtime
+    # gives the exported file's chunks as the trainer's float64 reference sampler does.
+    from equigym.assets import asset_path
+
+    path = asset_path("edp", f"{task}.safetensors")
+    policy = DiffusionPolicy(path)
+    sym = Symmetry(task)
+    env = equigym.CoreEnv(task, variant=policy.metadata.get("variant") or None)
+    rng = np.random.default_rng(3)
+    obs = []
+    for s in range(3):
+        o = env.reset(s)
+        obs.append(o)
+        w = rng.normal(size=(1, policy.action_dim)).clip(-1.5, 1.5)
+        for a in policy.sample(o[None], w).reshape(-1, 10):
+            o = env.step(a)[0]
+        obs.append(o)
+    obs = np.stack(obs)
+    w = rng.normal(size=(len(obs), policy.action_dim)).clip(-1.5, 1.5)
+    n = len(obs)
+    chunk = policy.sample(obs, w, precision="f64").reshape(n, -1)
+    np.testing.assert_allclose(chunk, ExportedPolicy(path).sample(obs, w).reshape(n, -1), atol=1e-6)
+    for g in sym.elements:
+        rotated = policy.sample(sym.act_observation(obs, g=g), sym.act_latent(w, g=g), precision="f64")
+        np.testing.assert_allclose(rotated.reshape(n, -1), sym.act_chunk(chunk, g=g), atol=1e-4)
