@@ -22,6 +22,11 @@ demos stack_d1_100 100
 demos stack_d1_300 300
 demos stack_d1_100_dart005 100 0.005
 demos stack_d1_100_dart01 100 0.01
+keep() { # file command...: write the command's output to file only when it finishes
+    local file=$1
+    shift
+    "$@" >"$file.part" && mv "$file.part" "$file"
+}
 # name: demo file, extra training arguments
 declare -A CONFIGS=(
     [clean]="stack_d1_100"
@@ -44,13 +49,13 @@ for name in "${NAMES[@]}"; do
         --steps 40000 --hidden-fields 64 $extra
     # History policies need the conditioning that only `failures` builds; the rest run both.
     if ! grep -q -- "--obs-history 2" <<<"$extra"; then
-        [ -f "$OUT/$name.eval.json" ] || $PY -m baselines.edp eval --policy "$policy" >"$OUT/$name.eval.json"
+        [ -s "$OUT/$name.eval.json" ] || keep "$OUT/$name.eval.json" $PY -m baselines.edp eval --policy "$policy"
     fi
-    [ -f "$OUT/$name.failures.json" ] || $PY -m baselines.edp failures --policy "$policy" --episodes 200 \
-        >"$OUT/$name.failures.json"
+    [ -s "$OUT/$name.failures.json" ] || keep "$OUT/$name.failures.json" \
+        $PY -m baselines.edp failures --policy "$policy" --episodes 200
     # Model choice is made on the validation starts, never on the evaluation starts.
-    [ -f "$OUT/$name.validation.json" ] || $PY -m baselines.edp failures --policy "$policy" --episodes 200 \
-        --validation >"$OUT/$name.validation.json"
+    [ -s "$OUT/$name.validation.json" ] || keep "$OUT/$name.validation.json" \
+        $PY -m baselines.edp failures --policy "$policy" --episodes 200 --validation
 done
 $PY - "$OUT" <<'PYEOF'
 import json, pathlib, sys
