@@ -17,13 +17,14 @@
 
 use std::sync::Arc;
 
+use equigym_wrappers::latent::LatentBatchEnv;
 use equigym_wrappers::steerability::Rate;
-use equigym_wrappers::{DiffusionPolicy, LatentEnv};
+use equigym_wrappers::DiffusionPolicy;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::rng::{Rng, Stream};
-use crate::run::{make_env, step_envs, RunConfig};
+use crate::run::{make_batch, member_obs, RunConfig};
 
 /// Seed of evaluation episode 0; episode k starts from seed `EVAL_SEED + k`.
 pub const EVAL_SEED: u64 = 10_000;
@@ -44,42 +45,32 @@ impl Episodes {
 /// Fills the latents of the running episodes: `(active indices, their observations, latents)`.
 pub(crate) type Choose<'a> = dyn FnMut(&[usize], &[f32], &mut Vec<f64>) + 'a;
 
-/// Run `episodes` evaluation episodes in `envs` (grown with `make` as needed). Before every
-/// latent step, `choose(active, obs, latents)` gets the indices of the still-running episodes
-/// and their observations (rows, float32) and fills their latents (rows x latent dim, the
-/// scaled box; clipped to the bound when stepped).
-pub(crate) fn run_episodes(
-    pool: &rayon::ThreadPool,
-    envs: &mut Vec<LatentEnv>,
-    make: &dyn Fn() -> Result<LatentEnv>,
-    policy: &DiffusionPolicy,
-    episodes: usize,
-    choose: &mut Choose<'_>,
-) -> Result<Episodes> {
-    while envs.len() < episodes {
-        envs.push(make()?);
-    }
-    for (k, e) in envs.iter_mut().take(episodes).enumerate() {
-        e.reset(EVAL_SEED + k as u64)?;
-    }
+/// Run one evaluation episode in each environment of `envs` (a batch without auto-reset;
+/// episode k starts from seed [`EVAL_SEED`] + k). Before every latent step, `choose(active, obs,
+/// latents)` gets the indices of the still-running episodes and their observations (rows,
+/// float32) and fills their latents (rows x latent dim, the scaled box; clipped to the bound
+/// when stepped).
+pub(crate) fn run_episodes(envs: &mut LatentBatchEnv, choose: &mut Choose<'_>) -> Result<Episodes> {
+    let episodes = envs.num_envs();
+    let seeds: Vec<u64> = (0..episodes as u64).map(|k| EVAL_SEED + k).collect();
+    envs.reset(&seeds)?;
+    let ad = envs.action_dim();
     let mut active = vec![true; episodes];
     let mut successes = vec![false; episodes];
     let mut env_steps = 0u64;
-    let od = policy.obs_dim();
-    let mut latents = Vec::new();
-    while active.iter().any(|a| *a) {
+    let (mut latents, mut rows) = (Vec::new(), vec![0.0; episodes * ad]);
+    while active.contains(&true) {
         let idx: Vec<usize> = (0..episodes).filter(|k| active[*k]).collect();
-        let mut obs = Vec::with_capacity(idx.len() * od);
-        for &k in &idx {
-            obs.extend(envs[k].env_mut().observe().iter().map(|v| *v as f32));
-        }
+        let obs: Vec<f32> = idx.iter().flat_map(|&k| member_obs(envs, k)).collect();
         latents.clear();
         choose(&idx, &obs, &mut latents);
-        let mut refs: Vec<&mut LatentEnv> =
-            envs.iter_mut().take(episodes).enumerate().filter(|(k, _)| active[*k]).map(|(_, e)| e).collect();
-        let results = step_envs(pool, &mut refs, policy, &latents)?;
-        for (&k, r) in idx.iter().zip(&results) {
-            env_steps += r.executed as u64;
+        for (&k, w) in idx.iter().zip(latents.chunks_exact(ad)) {
+            rows[k * ad..(k + 1) * ad].copy_from_slice(w);
+        }
+        envs.step_masked(&rows, &active)?;
+        for &k in &idx {
+            let r = envs.last_step(k).unwrap_or_default();
+            env_steps += envs.env(k).map_or(0, |e| e.last_executed()) as u64;
             successes[k] |= r.success;
             if r.success || r.terminated || r.truncated {
                 active[k] = false;
@@ -123,11 +114,6 @@ pub fn evaluate_base(cfg: &RunConfig, scale: f64) -> Result<BaseEvaluation> {
     }
     let path = cfg.policy_path();
     let policy = Arc::new(DiffusionPolicy::load(&path)?);
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(cfg.threads)
-        .thread_name(|i| format!("equigym-eval-{i}"))
-        .build()
-        .map_err(|e| Error::InvalidOption(format!("cannot start {} threads: {e}", cfg.threads)))?;
     let episodes = cfg.eval_episodes;
     let latent_dim = policy.action_dim();
     let mut rngs: Vec<Rng> = (0..episodes as u64).map(|k| Rng::new(cfg.seed, Stream::BaseEval, k)).collect();
@@ -136,9 +122,8 @@ pub fn evaluate_base(cfg: &RunConfig, scale: f64) -> Result<BaseEvaluation> {
             out.extend((0..latent_dim).map(|_| scale * rngs[k].normal()));
         }
     };
-    let make = || make_env(cfg, &policy);
-    let mut envs = Vec::with_capacity(episodes);
-    let result = run_episodes(&pool, &mut envs, &make, &policy, episodes, &mut choose)?;
+    let mut envs = make_batch(cfg, &policy, episodes)?;
+    let result = run_episodes(&mut envs, &mut choose)?;
     let wins = result.successes.iter().filter(|s| **s).count();
     Ok(BaseEvaluation {
         task: cfg.task.clone(),

@@ -35,11 +35,10 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use equigym_envs::EnvConfig;
-use equigym_envs::{Env, EnvError};
+use equigym_envs::{AutoresetMode, Env, EnvError};
 use equigym_nn::Adam;
-use equigym_wrappers::latent::LatentStep;
+use equigym_wrappers::latent::{latent_batch, LatentBatchEnv};
 use equigym_wrappers::{DiffusionPolicy, Group, LatentEnv, TaskSymmetry, DEFAULT_LATENT_BOUND};
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{io_err, Error, Result};
@@ -444,32 +443,6 @@ fn params_hash(sac: &Sac<f32>) -> u64 {
     ])
 }
 
-/// Denoise `latents` (rows x latent dim, scaled box) for `envs` and run the chunks, on `pool`.
-pub(crate) fn step_envs(
-    pool: &rayon::ThreadPool,
-    envs: &mut [&mut LatentEnv],
-    policy: &DiffusionPolicy,
-    latents: &[f64],
-) -> Result<Vec<LatentStep>> {
-    let (od, ad) = (policy.obs_dim(), policy.action_dim());
-    let n = envs.len();
-    let obs: Vec<f64> = envs.iter_mut().flat_map(|e| e.env_mut().observe().to_vec()).collect();
-    let w: Vec<f64> = latents.iter().map(|v| v.clamp(-DEFAULT_LATENT_BOUND, DEFAULT_LATENT_BOUND)).collect();
-    let mut chunks = vec![0.0; n * ad];
-    let per = n.div_ceil(pool.current_num_threads()).max(1);
-    let steps = policy.default_ddim_steps;
-    pool.install(|| {
-        chunks
-            .par_chunks_mut(per * ad)
-            .zip(w.par_chunks(per * ad))
-            .zip(obs.par_chunks(per * od))
-            .try_for_each(|((c, w), o)| policy.sample(o, w, steps, c))
-    })?;
-    let out: std::result::Result<Vec<LatentStep>, equigym_wrappers::Error> =
-        pool.install(|| envs.par_iter_mut().zip(chunks.par_chunks(ad)).map(|(e, c)| e.execute(c.to_vec())).collect());
-    Ok(out?)
-}
-
 fn to_f32(v: &[f64]) -> Vec<f32> {
     v.iter().map(|x| *x as f32).collect()
 }
@@ -477,10 +450,11 @@ fn to_f32(v: &[f64]) -> Vec<f32> {
 struct Runner {
     cfg: RunConfig,
     policy: Arc<DiffusionPolicy>,
-    pool: rayon::ThreadPool,
     sac: Sac<f32>,
-    envs: Vec<LatentEnv>,
-    eval_envs: Vec<LatentEnv>,
+    /// The training environments; the runner resets them, with seeds from its own stream.
+    envs: LatentBatchEnv,
+    /// One environment per evaluation episode, made at the first evaluation.
+    eval_envs: Option<LatentBatchEnv>,
     replay: Replay,
     streams: Streams,
     num_timesteps: u64,
@@ -549,13 +523,9 @@ impl Runner {
     /// One vector step with its transitions and gradient steps.
     fn collect_and_train(&mut self, batch: &mut Batch<f32>) -> Result<()> {
         let rollout_started = Instant::now();
-        let (n, ad, od) = (self.envs.len(), self.sac.latent_dim(), self.obs_dim);
-        let mut obs = vec![0.0f32; n * od];
-        for (i, e) in self.envs.iter_mut().enumerate() {
-            for (o, v) in obs[i * od..(i + 1) * od].iter_mut().zip(e.env_mut().observe()) {
-                *o = *v as f32;
-            }
-        }
+        let (n, ad, od) = (self.envs.num_envs(), self.sac.latent_dim(), self.obs_dim);
+        let obs: Vec<f32> = (0..n).flat_map(|i| member_obs(&self.envs, i)).collect();
+        debug_assert_eq!(obs.len(), n * od);
         let bound = DEFAULT_LATENT_BOUND;
         let scaled: Vec<f32> = if (self.num_timesteps as usize) < self.cfg.preset.warmup {
             (0..n * ad).map(|_| (self.streams.warmup.normal().clamp(-bound, bound) / bound) as f32).collect()
@@ -565,25 +535,30 @@ impl Runner {
             self.sac.act(&obs, n, &eps)
         };
         let latents: Vec<f64> = scaled.iter().map(|a| *a as f64 * bound).collect();
-        let mut refs: Vec<&mut LatentEnv> = self.envs.iter_mut().collect();
-        let results = step_envs(&self.pool, &mut refs, &self.policy, &latents)?;
+        self.envs.step(&latents)?;
         self.num_timesteps += n as u64;
-        for (i, r) in results.iter().enumerate() {
-            let next = to_f32(self.envs[i].env_mut().observe());
+        let (mut seeds, mut ended) = (vec![0; n], vec![false; n]);
+        for i in 0..n {
+            let r = self.envs.last_step(i).unwrap_or_default();
+            let next = member_obs(&self.envs, i);
             let terminal = r.terminated || (self.cfg.terminate_on_success && r.success);
-            let chunk = if self.cfg.noise_aliased {
-                let mut c = self.envs[i].last_chunk().to_vec();
-                self.policy.normalize_actions(&mut c);
-                to_f32(&c)
-            } else {
-                Vec::new()
+            let chunk = match self.envs.env(i) {
+                Some(e) if self.cfg.noise_aliased => {
+                    let mut c = e.last_chunk().to_vec();
+                    self.policy.normalize_actions(&mut c);
+                    to_f32(&c)
+                }
+                _ => Vec::new(),
             };
             let (o, a) = (&obs[i * od..(i + 1) * od], &scaled[i * ad..(i + 1) * ad]);
             self.replay.push_with_chunk(o, a, &chunk, r.reward as f32, &next, terminal);
             if terminal || r.truncated {
-                let seed = self.streams.env_seeds.next_u64();
-                self.envs[i].reset(seed)?;
+                seeds[i] = self.streams.env_seeds.next_u64();
+                ended[i] = true;
             }
+        }
+        if ended.contains(&true) {
+            self.envs.reset_masked(&seeds, &ended)?;
         }
         let train_started = Instant::now();
         self.time.rollout += (train_started - rollout_started).as_secs_f64();
@@ -628,9 +603,11 @@ impl Runner {
             let a = sac.act(obs, idx.len(), &eps);
             out.extend(a.iter().map(|v| *v as f64 * DEFAULT_LATENT_BOUND));
         };
-        let (cfg, policy) = (&self.cfg, &self.policy);
-        let make = || make_env(cfg, policy);
-        let result = run_episodes(&self.pool, &mut self.eval_envs, &make, policy, episodes, &mut choose)?;
+        let envs = match &mut self.eval_envs {
+            Some(envs) => envs,
+            none => none.insert(make_batch(&self.cfg, &self.policy, episodes)?),
+        };
+        let result = run_episodes(envs, &mut choose)?;
         self.eval_env_steps += result.env_steps;
         Ok(result.rate())
     }
@@ -658,7 +635,7 @@ impl Runner {
     }
 
     fn checkpoint(&mut self) -> Result<Checkpoint> {
-        let envs = self.envs.iter().map(|e| e.env().get_state()).collect::<std::result::Result<Vec<_>, EnvError>>()?;
+        let envs = self.envs.envs().map(|e| e.env().get_state()).collect::<std::result::Result<Vec<_>, EnvError>>()?;
         Ok(Checkpoint {
             format: CHECKPOINT_FORMAT.into(),
             fingerprint: self.cfg.fingerprint(),
@@ -716,11 +693,14 @@ impl Runner {
             (None, None) => {}
             _ => return Err(bad("action critics saved for a run without noise aliasing, or missing".into())),
         }
-        if c.envs.len() != self.envs.len() {
-            return Err(bad(format!("{} environments saved, {} needed", c.envs.len(), self.envs.len())));
+        let n = self.envs.num_envs();
+        if c.envs.len() != n {
+            return Err(bad(format!("{} environments saved, {n} needed", c.envs.len())));
         }
-        for (e, s) in self.envs.iter_mut().zip(&c.envs) {
-            e.env_mut().set_state(s)?;
+        // Any start will do: every environment's state is replaced by the saved one.
+        self.envs.reset(&vec![0; n])?;
+        for (i, s) in c.envs.iter().enumerate() {
+            self.envs.edit(i, |e| e.env_mut().set_state(s)).unwrap_or(Ok(()))?;
         }
         self.sac.actor.params = c.actor;
         self.sac.actor.expand();
@@ -859,21 +839,26 @@ pub fn make_env(cfg: &RunConfig, policy: &Arc<DiffusionPolicy>) -> Result<Latent
     Ok(LatentEnv::new(env, policy.clone(), DEFAULT_LATENT_BOUND, policy.default_ddim_steps)?)
 }
 
+/// `n` latent environments as the run configures them, batched on `cfg.threads` threads. The
+/// caller resets them (no auto-reset: the runner and the evaluation choose the seeds).
+pub(crate) fn make_batch(cfg: &RunConfig, policy: &Arc<DiffusionPolicy>, n: usize) -> Result<LatentBatchEnv> {
+    let envs = (0..n).map(|_| make_env(cfg, policy)).collect::<Result<Vec<_>>>()?;
+    Ok(latent_batch(envs, cfg.threads, AutoresetMode::Disabled)?)
+}
+
+/// Environment `i`'s observation in float32 (empty when out of range).
+pub(crate) fn member_obs(envs: &LatentBatchEnv, i: usize) -> Vec<f32> {
+    envs.obs(i).map(to_f32).unwrap_or_default()
+}
+
 /// Run (or resume, or extend) one steering run; see the module docs.
 pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
     cfg.validate()?;
     let started = Instant::now();
     let policy = Arc::new(DiffusionPolicy::load(cfg.policy_path())?);
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(cfg.threads)
-        .thread_name(|i| format!("equigym-steer-{i}"))
-        .build()
-        .map_err(|e| Error::InvalidOption(format!("cannot start {} threads: {e}", cfg.threads)))?;
-    let mut envs = Vec::with_capacity(cfg.preset.n_envs);
-    for _ in 0..cfg.preset.n_envs {
-        envs.push(make_env(cfg, &policy)?);
-    }
-    let sym = TaskSymmetry::for_env(envs[0].env(), Group::cyclic(GROUP_ORDER)?, policy.chunk_len)?;
+    let envs = make_batch(cfg, &policy, cfg.preset.n_envs)?;
+    let first = envs.env(0).ok_or_else(|| Error::InvalidOption("a run needs at least one environment".into()))?;
+    let sym = TaskSymmetry::for_env(first.env(), Group::cyclic(GROUP_ORDER)?, policy.chunk_len)?;
     let obs_dim = sym.observation.dim();
     let arch = Arch { width: cfg.preset.width, layers: cfg.preset.layers };
     let models = Models::<f32>::new(cfg.method, &sym, arch, cfg.seed)?;
@@ -896,10 +881,9 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
     let mut r = Runner {
         cfg: cfg.clone(),
         policy,
-        pool,
         sac,
         envs,
-        eval_envs: Vec::new(),
+        eval_envs: None,
         replay: Replay::with_chunks(obs_dim, latent_dim, chunk_dim, DEFAULT_CAPACITY),
         streams: Streams::new(cfg.seed),
         num_timesteps: 0,
@@ -936,10 +920,8 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
         r.write_log(&dir)?;
         r.load_cost_record(&dir);
     } else {
-        for e in r.envs.iter_mut() {
-            let seed = r.streams.env_seeds.next_u64();
-            e.reset(seed)?;
-        }
+        let seeds: Vec<u64> = (0..r.envs.num_envs()).map(|_| r.streams.env_seeds.next_u64()).collect();
+        r.envs.reset(&seeds)?;
         // A log from an older run without a checkpoint would mix two runs.
         let _ = std::fs::remove_file(dir.join("log.csv"));
     }

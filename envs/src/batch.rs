@@ -18,6 +18,19 @@
 //! is kept in [`BatchEnv::final_obs`] (gymnasium's `final_obs`, Stable-Baselines3's
 //! `terminal_observation`).
 //!
+//! [`AutoresetMode::Disabled`]: nothing resets by itself. The caller resets the environments
+//! whose episodes ended (or that it wants to end, e.g. on success) with
+//! [`BatchEnv::reset_masked`] and seeds of its own choosing; stepping an environment whose
+//! episode ended without that reset is an error (gymnasium's `AutoresetMode.DISABLED`). The
+//! Rust steering runner uses this mode: its seeds come from the run's own streams.
+//!
+//! # Stepping some of the environments
+//!
+//! [`BatchEnv::step_masked`] steps only the environments where a mask is true; the others keep
+//! their episodes and observations (an evaluation stops the episodes that are over while the
+//! rest go on). In the auto-reset modes, a masked-out environment whose episode ended is reset
+//! on its next stepped call, as it would have been.
+//!
 //! # Seeds
 //!
 //! `reset(seeds)` resets environment `i` with episode seed `seeds[i]`, exactly like
@@ -65,6 +78,8 @@ pub trait BatchMember: Send {
     fn reset_into(&mut self, seed: u64, obs: &mut [f64]) -> Result<()>;
     /// One step with an already-validated action; writes the new observation.
     fn step_into(&mut self, action: &[f64], obs: &mut [f64]) -> Result<MemberStep>;
+    /// Write the current observation (after a change made outside the batch: [`BatchEnv::edit`]).
+    fn observe_into(&mut self, obs: &mut [f64]);
 }
 
 impl BatchMember for Env {
@@ -87,6 +102,9 @@ impl BatchMember for Env {
             truncated: r.truncated,
             success: r.evaluation.success,
         })
+    }
+    fn observe_into(&mut self, obs: &mut [f64]) {
+        obs.copy_from_slice(self.observe());
     }
 }
 
@@ -118,6 +136,7 @@ pub enum AutoresetMode {
     #[default]
     NextStep,
     SameStep,
+    Disabled,
 }
 
 impl AutoresetMode {
@@ -126,6 +145,7 @@ impl AutoresetMode {
         match self {
             AutoresetMode::NextStep => "next_step",
             AutoresetMode::SameStep => "same_step",
+            AutoresetMode::Disabled => "disabled",
         }
     }
 }
@@ -136,8 +156,9 @@ impl std::str::FromStr for AutoresetMode {
         match s.to_ascii_lowercase().as_str() {
             "next_step" => Ok(AutoresetMode::NextStep),
             "same_step" => Ok(AutoresetMode::SameStep),
+            "disabled" => Ok(AutoresetMode::Disabled),
             other => Err(EnvError::InvalidConfig(format!(
-                "autoreset_mode must be 'next_step' or 'same_step', got '{other}'"
+                "autoreset_mode must be 'next_step', 'same_step' or 'disabled', got '{other}'"
             ))),
         }
     }
@@ -322,6 +343,22 @@ impl<E: BatchMember, D: ActionDecoder> BatchEnv<E, D> {
     /// Step every environment with its row of `actions` (B x [`BatchEnv::action_dim`], row-major).
     /// All rows are checked first: on error nothing has stepped.
     pub fn step(&mut self, actions: &[f64]) -> Result<()> {
+        self.step_where(actions, None)
+    }
+
+    /// Step the environments where `mask` is true with their rows of `actions` (B x
+    /// [`BatchEnv::action_dim`]; the rows of the others are not read and may be anything). The
+    /// others keep their state and report an empty step. All stepped rows are checked first: on
+    /// error nothing has stepped.
+    pub fn step_masked(&mut self, actions: &[f64], mask: &[bool]) -> Result<()> {
+        let n = self.slots.len();
+        if mask.len() != n {
+            return Err(EnvError::WrongLength { what: "step mask".into(), expected: n, got: mask.len() });
+        }
+        self.step_where(actions, Some(mask))
+    }
+
+    fn step_where(&mut self, actions: &[f64], mask: Option<&[bool]>) -> Result<()> {
         if self.needs_reset {
             return Err(EnvError::CallOrder("step() called before reset()".into()));
         }
@@ -334,16 +371,35 @@ impl<E: BatchMember, D: ActionDecoder> BatchEnv<E, D> {
                 got: actions.len(),
             });
         }
-        for (i, row) in actions.chunks_exact(dim).enumerate() {
+        let stepped = |i: usize| mask.is_none_or(|m| m[i]);
+        for (i, row) in actions.chunks_exact(dim).enumerate().filter(|(i, _)| stepped(*i)) {
             // Environments that reset on this step ignore their action, but a bad one is still an error.
             check_finite(&format!("action of environment {i}"), row, dim)?;
+        }
+        if self.mode == AutoresetMode::Disabled {
+            if let Some(i) = (0..n).find(|&i| stepped(i) && self.slots[i].ended) {
+                return Err(EnvError::CallOrder(format!(
+                    "environment {i}'s episode ended; reset it (reset_masked) before stepping it again"
+                )));
+            }
         }
         let actions: &[f64] = match self.decoder.as_mut() {
             None => actions,
             Some(decoder) => {
+                // Rows that are not stepped are decoded from zeros (finite; their chunks never run).
+                let input: std::borrow::Cow<[f64]> = match mask {
+                    None => actions.into(),
+                    Some(m) => actions
+                        .chunks_exact(dim)
+                        .zip(m)
+                        .flat_map(|(row, &on)| row.iter().map(move |v| if on { *v } else { 0.0 }))
+                        .collect::<Vec<f64>>()
+                        .into(),
+                };
                 let obs: Vec<f64> = self.slots.iter().flat_map(|s| s.obs.iter().copied()).collect();
-                decoder.decode(&self.pool, &obs, actions, &mut self.decoded)?;
-                for (i, row) in self.decoded.chunks_exact(self.member_action_dim).enumerate() {
+                decoder.decode(&self.pool, &obs, &input, &mut self.decoded)?;
+                let rows = self.decoded.chunks_exact(self.member_action_dim).enumerate();
+                for (i, row) in rows.filter(|(i, _)| stepped(*i)) {
                     check_finite(&format!("decoded action of environment {i}"), row, self.member_action_dim)?;
                 }
                 &self.decoded
@@ -352,17 +408,36 @@ impl<E: BatchMember, D: ActionDecoder> BatchEnv<E, D> {
         let mode = self.mode;
         let adim = self.member_action_dim;
         let result = self.pool.install(|| {
-            self.slots
-                .par_iter_mut()
-                .zip(actions.par_chunks_exact(adim))
-                .with_max_len(1)
-                .try_for_each(|(slot, a)| slot.step(a, mode))
+            self.slots.par_iter_mut().zip(actions.par_chunks_exact(adim)).enumerate().with_max_len(1).try_for_each(
+                |(i, (slot, a))| {
+                    if stepped(i) {
+                        slot.step(a, mode)
+                    } else {
+                        slot.reset_now = false;
+                        slot.step = MemberStep::default();
+                        Ok(())
+                    }
+                },
+            )
         });
         if result.is_err() {
             // Only reachable through a member's own failure; the batch must be reset.
             self.needs_reset = true;
         }
         result
+    }
+
+    /// Change environment `i` in place with `edit` (e.g. restore a saved state); its observation
+    /// is read again afterwards and its episode counts as running. `None` when `i` is out of
+    /// range.
+    pub fn edit<R>(&mut self, i: usize, edit: impl FnOnce(&mut E) -> R) -> Option<R> {
+        let slot = self.slots.get_mut(i)?;
+        let out = edit(&mut slot.env);
+        slot.env.observe_into(&mut slot.obs);
+        slot.ended = false;
+        slot.reset_now = false;
+        slot.step = MemberStep::default();
+        Some(out)
     }
 
     /// Observation of environment `i` after the last call (the reset observation where it

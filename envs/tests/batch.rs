@@ -179,3 +179,66 @@ fn masked_reset_resets_only_the_chosen_environments() {
     assert_eq!(bits(b.obs(1).unwrap()), bits(single.reset(99).unwrap()));
     assert_eq!(b.episode_seeds()[1], 99);
 }
+
+#[test]
+fn disabled_autoreset_leaves_resets_to_the_caller_and_refuses_to_step_an_ended_episode() {
+    let horizon = 3;
+    let mut b = batch("lift", horizon, 2, AutoresetMode::Disabled);
+    b.reset(&[20, 21, 22, 23, 24]).unwrap();
+    let hold: Vec<f64> = b.envs().flat_map(|e| e.current_target()).collect();
+    for _ in 0..horizon {
+        b.step(&hold).unwrap();
+    }
+    // Every episode ended on that step and none was reset behind the caller's back.
+    assert!((0..B).all(|i| b.last_step(i).unwrap().truncated && !b.was_reset(i).unwrap()));
+    assert!(b.envs().all(|e| e.elapsed_steps() == horizon));
+    let err = b.step(&hold).unwrap_err();
+    assert!(matches!(err, EnvError::CallOrder(_)), "{err}");
+    assert!(b.envs().all(|e| e.elapsed_steps() == horizon), "a refused step moved something");
+    // The caller resets the ended episodes with seeds of its choosing; then they step again.
+    b.reset_masked(&[30, 31, 32, 33, 34], &[true; B]).unwrap();
+    let mut single = Env::new(config("lift", horizon)).unwrap();
+    assert_eq!(bits(b.obs(3).unwrap()), bits(single.reset(33).unwrap()));
+    b.step(&hold).unwrap();
+    assert!(b.envs().all(|e| e.elapsed_steps() == 1));
+    assert_eq!("disabled".parse::<AutoresetMode>().unwrap().as_str(), "disabled");
+}
+
+#[test]
+fn masked_steps_move_only_the_chosen_environments() {
+    let seeds = [40, 41, 42, 43, 44];
+    let mut b = batch("lift", 400, 2, AutoresetMode::NextStep);
+    b.reset(&seeds).unwrap();
+    let probe = Env::new(config("lift", 400)).unwrap();
+    let acts = actions(&probe, 1, 5).remove(0);
+    let mask = [true, false, true, false, false];
+    // The rows of environments that do not step are not read, not even checked.
+    let mut rows = acts.clone();
+    rows[10..20].fill(f64::NAN);
+    b.step_masked(&rows, &mask).unwrap();
+    for i in 0..B {
+        let mut single = Env::new(config("lift", 400)).unwrap();
+        single.reset(seeds[i]).unwrap();
+        if mask[i] {
+            single.step(&acts[i * 10..(i + 1) * 10]).unwrap();
+        }
+        assert_eq!(bits(b.obs(i).unwrap()), bits(single.observe()), "environment {i}");
+        assert_eq!(b.env(i).unwrap().elapsed_steps(), mask[i] as usize);
+    }
+    // A stepped row is still checked, and a wrong mask length is a typed error.
+    rows[0] = f64::NAN;
+    assert!(b.step_masked(&rows, &mask).is_err());
+    assert!(matches!(b.step_masked(&acts, &[true; 2]), Err(EnvError::WrongLength { .. })));
+}
+
+#[test]
+fn edit_changes_a_member_in_place_and_reads_its_observation_again() {
+    let mut b = batch("lift", 400, 1, AutoresetMode::Disabled);
+    b.reset(&[50, 51, 52, 53, 54]).unwrap();
+    let mut donor = Env::new(config("lift", 400)).unwrap();
+    donor.reset(77).unwrap();
+    let state = donor.get_state().unwrap();
+    b.edit(2, |e| e.set_state(&state)).unwrap().unwrap();
+    assert_eq!(bits(b.obs(2).unwrap()), bits(donor.observe()));
+    assert!(b.edit(B, |_| ()).is_none());
+}

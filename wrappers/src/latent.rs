@@ -20,6 +20,12 @@ use crate::error::Result;
 /// Default latent bound (DSRL's noise action space).
 pub const DEFAULT_LATENT_BOUND: f64 = 1.5;
 
+/// Latent actions clipped to the box [-bound, bound]: the one place where a latent action
+/// meets its bound on the way to the policy (single and batched stepping both call it).
+fn clip(latent: &[f64], bound: f64) -> Vec<f64> {
+    latent.iter().map(|v| v.clamp(-bound, bound)).collect()
+}
+
 /// What a latent step returns.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LatentStep {
@@ -111,7 +117,7 @@ impl LatentEnv {
     /// The chunk the policy makes of `latent` at the current observation (no stepping).
     pub fn decode(&mut self, latent: &[f64]) -> Result<Vec<f64>> {
         check_finite("latent action", latent, self.latent_dim())?;
-        let w: Vec<f64> = latent.iter().map(|v| v.clamp(-self.bound, self.bound)).collect();
+        let w = clip(latent, self.bound);
         let obs = self.env.observe().to_vec();
         let mut chunk = vec![0.0; self.latent_dim()];
         self.policy.sample(&obs, &w, self.ddim_steps, &mut chunk)?;
@@ -124,8 +130,9 @@ impl LatentEnv {
         self.execute(chunk)
     }
 
-    /// Run an already-decoded chunk (used by batched stepping, which denoises many at once).
-    pub fn execute(&mut self, chunk: Vec<f64>) -> Result<LatentStep> {
+    /// Run an already-decoded chunk (the batch member's step: [`LatentDecoder`] denoises all
+    /// rows at once before).
+    fn execute(&mut self, chunk: Vec<f64>) -> Result<LatentStep> {
         if chunk.len() != self.latent_dim() {
             return Err(equigym_envs::EnvError::WrongLength {
                 what: "chunk".into(),
@@ -160,22 +167,6 @@ impl LatentEnv {
     }
 }
 
-/// Step many latent environments with one batched denoising call (no auto-reset; see
-/// [`LatentBatchEnv`] for the vector environment). They must share one policy (the same `Arc`)
-/// and the same DDIM steps.
-pub fn step_batch(envs: &mut [LatentEnv], latents: &[f64]) -> Result<Vec<LatentStep>> {
-    let Some(first) = envs.first() else {
-        return Ok(Vec::new());
-    };
-    let decoder = LatentDecoder::shared_by(envs)?;
-    let ad = first.latent_dim();
-    check_finite("latent actions", latents, envs.len() * ad)?;
-    let obs: Vec<f64> = envs.iter_mut().flat_map(|e| e.env.observe().to_vec()).collect();
-    let mut chunks = vec![0.0; latents.len()];
-    decoder.decode_rows(&obs, latents, &mut chunks)?;
-    envs.iter_mut().zip(chunks.chunks_exact(ad)).map(|(e, c)| e.execute(c.to_vec())).collect()
-}
-
 // -- the latent vector environment ------------------------------------------------------------
 
 /// The batch member is the latent environment running an already-decoded chunk; the batch's
@@ -196,6 +187,9 @@ impl BatchMember for LatentEnv {
         let r = self.execute(chunk.to_vec()).map_err(into_env_error)?;
         obs.copy_from_slice(self.env.observe());
         Ok(MemberStep { reward: r.reward, terminated: r.terminated, truncated: r.truncated, success: r.success })
+    }
+    fn observe_into(&mut self, obs: &mut [f64]) {
+        obs.copy_from_slice(self.env.observe());
     }
 }
 
@@ -226,8 +220,7 @@ impl LatentDecoder {
     }
 
     fn decode_rows(&self, obs: &[f64], latents: &[f64], out: &mut [f64]) -> Result<()> {
-        let w: Vec<f64> = latents.iter().map(|v| v.clamp(-self.bound, self.bound)).collect();
-        self.policy.sample(obs, &w, self.ddim_steps, out)
+        self.policy.sample(obs, &clip(latents, self.bound), self.ddim_steps, out)
     }
 }
 

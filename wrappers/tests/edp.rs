@@ -4,7 +4,7 @@ use std::collections::HashMap;
 
 use equigym_envs::{Env, EnvConfig};
 use equigym_wrappers::edp::Precision;
-use equigym_wrappers::latent::{step_batch, LatentEnv};
+use equigym_wrappers::latent::{latent_batch, LatentEnv};
 use equigym_wrappers::{DiffusionPolicy, Error};
 use safetensors::tensor::TensorView;
 use safetensors::Dtype;
@@ -122,24 +122,27 @@ fn batched_latent_steps_equal_single_ones() {
     // environment's observation (a constant policy would hide rows swapped or shared).
     let policy = std::sync::Arc::new(DiffusionPolicy::from_bytes(&random_policy(), "t").unwrap());
     let make = || LatentEnv::new(Env::new(EnvConfig::new("lift")).unwrap(), policy.clone(), 1.5, 5).unwrap();
-    let mut batch: Vec<LatentEnv> = (0..3).map(|_| make()).collect();
+    let mut batch = latent_batch((0..3).map(|_| make()).collect(), 2, equigym_envs::AutoresetMode::Disabled).unwrap();
     let mut single: Vec<LatentEnv> = (0..3).map(|_| make()).collect();
-    for (k, (b, s)) in batch.iter_mut().zip(single.iter_mut()).enumerate() {
-        b.reset(k as u64).unwrap();
+    batch.reset(&[0, 1, 2]).unwrap();
+    for (k, s) in single.iter_mut().enumerate() {
         s.reset(k as u64).unwrap();
     }
     // The same latent for every row: only the observations tell the rows apart.
     let w: Vec<f64> = (0..3 * CHUNK).map(|i| libm::sin((i % CHUNK) as f64 * 0.37)).collect();
     let decoded: Vec<Vec<f64>> = single.iter_mut().map(|s| s.decode(&w[..CHUNK]).unwrap()).collect();
     assert!(decoded[0] != decoded[1] && decoded[1] != decoded[2], "the policy must depend on the observation");
-    let steps = step_batch(&mut batch, &w).unwrap();
-    for (k, b) in batch.iter().enumerate() {
+    batch.step(&w).unwrap();
+    for (k, b) in batch.envs().enumerate() {
         assert_eq!(b.last_chunk(), &decoded[k][..], "env {k} ran another row's chunk");
     }
     for (k, s) in single.iter_mut().enumerate() {
         let r = s.step(&w[k * CHUNK..(k + 1) * CHUNK]).unwrap();
-        assert_eq!(r, steps[k]);
-        assert_eq!(s.env().get_state().unwrap(), batch[k].env().get_state().unwrap());
+        let b = batch.last_step(k).unwrap();
+        assert_eq!((r.reward, r.terminated, r.truncated, r.success), (b.reward, b.terminated, b.truncated, b.success));
+        let member = batch.env(k).unwrap();
+        assert_eq!(s.env().get_state().unwrap(), member.env().get_state().unwrap());
+        assert_eq!(member.last_executed(), 4);
         assert_eq!(r.executed, 4);
         assert!(r.reward >= -4.0 && r.reward <= 0.0);
     }
