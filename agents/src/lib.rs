@@ -20,11 +20,12 @@
 //! The `steer` binary and `python -m equigym.steer` are the command-line entry points.
 
 pub use equigym_nn as nn;
+/// The C8 Fourier-basis layers' kernels live with the other kernels, in `equigym-nn`.
+pub use equigym_nn::fourier;
 
 pub mod equi;
 pub mod error;
 pub mod evaluation;
-pub mod fourier;
 pub mod gradcheck;
 pub mod models;
 pub mod net;

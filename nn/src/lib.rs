@@ -59,19 +59,11 @@
 //! C library (the f32 `tanh` of the layers is the crate's own [`tanh_f32`]); `sqrt` is exact
 //! everywhere.
 //!
-//! ## Measured speed (AMD EPYC, one thread; `benches/results/agents-amd-epyc.md`; the Intel Xeon record is `agents.md`, `python benches/agents.py`)
-//!
-//! - [`gemm`] on the agents' layer shapes at batch 256: 35-45 GFLOP/s, about 50-67 % of the
-//!   core's measured f32 FMA peak (67-102 GFLOP/s on a shared machine). Checking the slice bounds
-//!   once per call instead of per multiply-add was worth 1.4-1.6x.
-//! - [`tanh_f32`]: glibc's `tanhf` was half of a DSRL gradient step (3 x 64 Tanh MLPs); the
-//!   crate's own branch-free tanh vectorises and made the step 3x faster.
-//! - The DDIM runtime on these kernels (f32): 8x PyTorch f32 at batch 1, 3x at 16, 1.0x at 256.
-//! - On the Intel Xeon (AVX-512; `agents.md`, best of 3 alternating runs): [`gemm`] at 75-93
-//!   GFLOP/s, 46-56 % of the core's AVX-512 FMA peak (165 GFLOP/s); the earlier "over 100 % of
-//!   peak" figures divided by the AVX2 peak.
+//! Measured speed of these kernels, against the core's peak and PyTorch: [docs/agents.md](../docs/agents.md),
+//! "Kernel speed (equigym-nn)".
 
 pub mod adam;
+pub mod fourier;
 pub mod gemm;
 pub mod logs;
 pub mod ops;

@@ -543,15 +543,22 @@ mod rows16 {
     /// Transpose a 16 x 16 tile held as sixteen row vectors.
     #[inline(always)]
     unsafe fn transpose(v: &mut [__m512; 16]) {
-        for (k, pair) in SWAPS.iter().enumerate() {
-            let idx =
-                [_mm512_loadu_si512(pair[0].as_ptr() as *const _), _mm512_loadu_si512(pair[1].as_ptr() as *const _)];
-            let s = 1 << k;
-            for lo in 0..16 {
-                if lo & s == 0 {
-                    let (a, b) = (v[lo], v[lo | s]);
-                    v[lo] = _mm512_permutex2var_ps(a, idx[0], b);
-                    v[lo | s] = _mm512_permutex2var_ps(a, idx[1], b);
+        // SAFETY: this function's contract (its callers check the CPU features it is compiled for
+        // and pass slices of the documented lengths) is what makes the intrinsics, loads and stores
+        // below sound; every pointer offset stays inside those slices.
+        unsafe {
+            for (k, pair) in SWAPS.iter().enumerate() {
+                let idx = [
+                    _mm512_loadu_si512(pair[0].as_ptr() as *const _),
+                    _mm512_loadu_si512(pair[1].as_ptr() as *const _),
+                ];
+                let s = 1 << k;
+                for lo in 0..16 {
+                    if lo & s == 0 {
+                        let (a, b) = (v[lo], v[lo | s]);
+                        v[lo] = _mm512_permutex2var_ps(a, idx[0], b);
+                        v[lo | s] = _mm512_permutex2var_ps(a, idx[1], b);
+                    }
                 }
             }
         }
@@ -561,11 +568,16 @@ mod rows16 {
     /// is column `c0 + j` (lanes past `w` are zero and never used).
     #[inline(always)]
     unsafe fn tile(m: &[f32], n: usize, r0: usize, c0: usize, w: usize) -> [__m512; 16] {
-        let mask = ((1u32 << w) - 1) as __mmask16;
-        let p = m.as_ptr();
-        let mut v: [__m512; 16] = std::array::from_fn(|b| _mm512_maskz_loadu_ps(mask, p.add((r0 + b) * n + c0)));
-        transpose(&mut v);
-        v
+        // SAFETY: this function's contract (its callers check the CPU features it is compiled for
+        // and pass slices of the documented lengths) is what makes the intrinsics, loads and stores
+        // below sound; every pointer offset stays inside those slices.
+        unsafe {
+            let mask = ((1u32 << w) - 1) as __mmask16;
+            let p = m.as_ptr();
+            let mut v: [__m512; 16] = std::array::from_fn(|b| _mm512_maskz_loadu_ps(mask, p.add((r0 + b) * n + c0)));
+            transpose(&mut v);
+            v
+        }
     }
 
     /// Rows `0..16 floor(rows / 16)` of [`super::layer_norm`]; returns how many rows it did.
@@ -582,41 +594,47 @@ mod rows16 {
         rows: usize,
         then_tanh: bool,
     ) -> usize {
-        assert!(x.len() >= rows * n && y.len() >= rows * n && mean_out.len() >= rows && rstd_out.len() >= rows);
-        let inv_n = _mm512_set1_ps((1.0 / n as f64) as f32);
-        let eps = _mm512_set1_ps(LAYER_NORM_EPS as f32);
-        // the block's columns, transposed (column j of the sixteen rows at 16 j)
-        let mut cols = vec![0.0f32; n * ROWS];
-        let mut r0 = 0;
-        while r0 + ROWS <= rows {
-            let mut sum = _mm512_setzero_ps();
-            for c0 in (0..n).step_by(ROWS) {
-                let w = ROWS.min(n - c0);
-                let t = tile(x, n, r0, c0, w);
-                for (j, col) in t.iter().enumerate().take(w) {
-                    sum = _mm512_add_ps(sum, *col);
-                    _mm512_storeu_ps(cols.as_mut_ptr().add((c0 + j) * ROWS), *col);
+        // SAFETY: this function's contract (its callers check the CPU features it is compiled for
+        // and pass slices of the documented lengths) is what makes the intrinsics, loads and stores
+        // below sound; every pointer offset stays inside those slices.
+        unsafe {
+            assert!(x.len() >= rows * n && y.len() >= rows * n && mean_out.len() >= rows && rstd_out.len() >= rows);
+            let inv_n = _mm512_set1_ps((1.0 / n as f64) as f32);
+            let eps = _mm512_set1_ps(LAYER_NORM_EPS as f32);
+            // the block's columns, transposed (column j of the sixteen rows at 16 j)
+            let mut cols = vec![0.0f32; n * ROWS];
+            let mut r0 = 0;
+            while r0 + ROWS <= rows {
+                let mut sum = _mm512_setzero_ps();
+                for c0 in (0..n).step_by(ROWS) {
+                    let w = ROWS.min(n - c0);
+                    let t = tile(x, n, r0, c0, w);
+                    for (j, col) in t.iter().enumerate().take(w) {
+                        sum = _mm512_add_ps(sum, *col);
+                        _mm512_storeu_ps(cols.as_mut_ptr().add((c0 + j) * ROWS), *col);
+                    }
                 }
+                let mean = _mm512_mul_ps(sum, inv_n);
+                let mut var = _mm512_setzero_ps();
+                for j in 0..n {
+                    let d = _mm512_sub_ps(_mm512_loadu_ps(cols.as_ptr().add(j * ROWS)), mean);
+                    var = _mm512_add_ps(var, _mm512_mul_ps(d, d));
+                }
+                let r =
+                    _mm512_div_ps(_mm512_set1_ps(1.0), _mm512_sqrt_ps(_mm512_add_ps(_mm512_mul_ps(var, inv_n), eps)));
+                let (mut m, mut rs) = ([0.0f32; ROWS], [0.0f32; ROWS]);
+                _mm512_storeu_ps(m.as_mut_ptr(), mean);
+                _mm512_storeu_ps(rs.as_mut_ptr(), r);
+                mean_out[r0..r0 + ROWS].copy_from_slice(&m);
+                rstd_out[r0..r0 + ROWS].copy_from_slice(&rs);
+                for b in 0..ROWS {
+                    let at = (r0 + b) * n;
+                    normalize_row(&x[at..at + n], &mut y[at..at + n], gain, shift, m[b], rs[b], then_tanh);
+                }
+                r0 += ROWS;
             }
-            let mean = _mm512_mul_ps(sum, inv_n);
-            let mut var = _mm512_setzero_ps();
-            for j in 0..n {
-                let d = _mm512_sub_ps(_mm512_loadu_ps(cols.as_ptr().add(j * ROWS)), mean);
-                var = _mm512_add_ps(var, _mm512_mul_ps(d, d));
-            }
-            let r = _mm512_div_ps(_mm512_set1_ps(1.0), _mm512_sqrt_ps(_mm512_add_ps(_mm512_mul_ps(var, inv_n), eps)));
-            let (mut m, mut rs) = ([0.0f32; ROWS], [0.0f32; ROWS]);
-            _mm512_storeu_ps(m.as_mut_ptr(), mean);
-            _mm512_storeu_ps(rs.as_mut_ptr(), r);
-            mean_out[r0..r0 + ROWS].copy_from_slice(&m);
-            rstd_out[r0..r0 + ROWS].copy_from_slice(&rs);
-            for b in 0..ROWS {
-                let at = (r0 + b) * n;
-                normalize_row(&x[at..at + n], &mut y[at..at + n], gain, shift, m[b], rs[b], then_tanh);
-            }
-            r0 += ROWS;
+            r0
         }
-        r0
     }
 
     /// Rows `0..16 floor(rows / 16)` of [`super::layer_norm_backward`]; returns how many rows
@@ -634,41 +652,46 @@ mod rows16 {
         mut grads: Option<(&mut [f32], &mut [f32])>,
         rows: usize,
     ) -> usize {
-        assert!(dy.len() >= rows * n && x.len() >= rows * n && mean.len() >= rows && rstd.len() >= rows);
-        assert!(tanh_out.is_none_or(|t| t.len() >= rows * n) && gain.len() >= n);
-        let inv_n = (1.0 / n as f64) as f32;
-        let mut xhat = vec![0.0f32; ROWS * n];
-        let mut r0 = 0;
-        while r0 + ROWS <= rows {
-            backward_block_prologue(r0, ROWS, dy, n, x, mean, rstd, tanh_out, grads.as_mut(), &mut xhat);
-            let (mut sd, mut sdx) = (_mm512_setzero_ps(), _mm512_setzero_ps());
-            for c0 in (0..n).step_by(ROWS) {
-                let w = ROWS.min(n - c0);
-                let (td, tx) = (tile(dy, n, r0, c0, w), tile(&xhat, n, 0, c0, w));
-                for j in 0..w {
-                    let d = _mm512_mul_ps(td[j], _mm512_set1_ps(gain[c0 + j]));
-                    sd = _mm512_add_ps(sd, d);
-                    sdx = _mm512_add_ps(sdx, _mm512_mul_ps(d, tx[j]));
+        // SAFETY: this function's contract (its callers check the CPU features it is compiled for
+        // and pass slices of the documented lengths) is what makes the intrinsics, loads and stores
+        // below sound; every pointer offset stays inside those slices.
+        unsafe {
+            assert!(dy.len() >= rows * n && x.len() >= rows * n && mean.len() >= rows && rstd.len() >= rows);
+            assert!(tanh_out.is_none_or(|t| t.len() >= rows * n) && gain.len() >= n);
+            let inv_n = (1.0 / n as f64) as f32;
+            let mut xhat = vec![0.0f32; ROWS * n];
+            let mut r0 = 0;
+            while r0 + ROWS <= rows {
+                backward_block_prologue(r0, ROWS, dy, n, x, mean, rstd, tanh_out, grads.as_mut(), &mut xhat);
+                let (mut sd, mut sdx) = (_mm512_setzero_ps(), _mm512_setzero_ps());
+                for c0 in (0..n).step_by(ROWS) {
+                    let w = ROWS.min(n - c0);
+                    let (td, tx) = (tile(dy, n, r0, c0, w), tile(&xhat, n, 0, c0, w));
+                    for j in 0..w {
+                        let d = _mm512_mul_ps(td[j], _mm512_set1_ps(gain[c0 + j]));
+                        sd = _mm512_add_ps(sd, d);
+                        sdx = _mm512_add_ps(sdx, _mm512_mul_ps(d, tx[j]));
+                    }
                 }
+                let (mut s1, mut s2) = ([0.0f32; ROWS], [0.0f32; ROWS]);
+                _mm512_storeu_ps(s1.as_mut_ptr(), sd);
+                _mm512_storeu_ps(s2.as_mut_ptr(), sdx);
+                for b in 0..ROWS {
+                    let at = (r0 + b) * n;
+                    backward_row_out(
+                        &mut dy[at..at + n],
+                        &xhat[b * n..(b + 1) * n],
+                        gain,
+                        s1[b],
+                        s2[b],
+                        rstd[r0 + b],
+                        inv_n,
+                    );
+                }
+                r0 += ROWS;
             }
-            let (mut s1, mut s2) = ([0.0f32; ROWS], [0.0f32; ROWS]);
-            _mm512_storeu_ps(s1.as_mut_ptr(), sd);
-            _mm512_storeu_ps(s2.as_mut_ptr(), sdx);
-            for b in 0..ROWS {
-                let at = (r0 + b) * n;
-                backward_row_out(
-                    &mut dy[at..at + n],
-                    &xhat[b * n..(b + 1) * n],
-                    gain,
-                    s1[b],
-                    s2[b],
-                    rstd[r0 + b],
-                    inv_n,
-                );
-            }
-            r0 += ROWS;
+            r0
         }
-        r0
     }
 }
 

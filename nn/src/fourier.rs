@@ -17,8 +17,8 @@
 //! group element acts in the Fourier basis as a rotation by `w theta` on each (re, im) pair and
 //! a sign on rho4, which every such block commutes with (up to float rounding in `T`).
 
-use equigym_nn::gemm::transpose;
-use equigym_nn::{gemm, ops, Real, Trans};
+use crate::gemm::transpose;
+use crate::{gemm, ops, Real, Trans};
 
 /// The group order this layer is written for.
 pub const ORDER: usize = 8;
@@ -252,7 +252,7 @@ impl<T: Real> Circulant<T> {
 /// coefficient at a time; a test compares the copies bit for bit.
 mod transform {
     use super::ORDER;
-    use equigym_nn::{as_f32s, as_f32s_mut, Isa, Real};
+    use crate::{as_f32s, as_f32s_mut, Isa, Real};
 
     /// Where frequency row `k` of the transform of row `r` lives in a Fourier buffer of `f`
     /// fields: `base + r * stride` (then `f` consecutive values, one per field).
@@ -400,87 +400,102 @@ mod transform {
         /// Transpose an 8 x 8 tile held as eight row vectors (its own inverse).
         #[inline(always)]
         unsafe fn transpose(r: [__m256; 8]) -> [__m256; 8] {
-            let t: [__m256; 8] = std::array::from_fn(|i| {
-                let (a, b) = (r[2 * (i / 2)], r[2 * (i / 2) + 1]);
-                if i % 2 == 0 {
-                    _mm256_unpacklo_ps(a, b)
-                } else {
-                    _mm256_unpackhi_ps(a, b)
-                }
-            });
-            // u[4 g + q]: rows 4 g .. 4 g + 4, component q (and q + 4) of each 128-bit half
-            let u: [__m256; 8] = std::array::from_fn(|i| {
-                let (g, q) = (i / 4, i % 4);
-                let (a, b) = (t[4 * g + q / 2], t[4 * g + 2 + q / 2]);
-                if q % 2 == 0 {
-                    _mm256_shuffle_ps::<0x44>(a, b)
-                } else {
-                    _mm256_shuffle_ps::<0xEE>(a, b)
-                }
-            });
-            std::array::from_fn(|c| {
-                if c < 4 {
-                    _mm256_permute2f128_ps::<0x20>(u[c], u[4 + c])
-                } else {
-                    _mm256_permute2f128_ps::<0x31>(u[c - 4], u[c])
-                }
-            })
+            // SAFETY: this function's contract (its callers check the CPU features it is compiled for
+            // and pass slices of the documented lengths) is what makes the intrinsics, loads and stores
+            // below sound; every pointer offset stays inside those slices.
+            unsafe {
+                let t: [__m256; 8] = std::array::from_fn(|i| {
+                    let (a, b) = (r[2 * (i / 2)], r[2 * (i / 2) + 1]);
+                    if i % 2 == 0 {
+                        _mm256_unpacklo_ps(a, b)
+                    } else {
+                        _mm256_unpackhi_ps(a, b)
+                    }
+                });
+                // u[4 g + q]: rows 4 g .. 4 g + 4, component q (and q + 4) of each 128-bit half
+                let u: [__m256; 8] = std::array::from_fn(|i| {
+                    let (g, q) = (i / 4, i % 4);
+                    let (a, b) = (t[4 * g + q / 2], t[4 * g + 2 + q / 2]);
+                    if q % 2 == 0 {
+                        _mm256_shuffle_ps::<0x44>(a, b)
+                    } else {
+                        _mm256_shuffle_ps::<0xEE>(a, b)
+                    }
+                });
+                std::array::from_fn(|c| {
+                    if c < 4 {
+                        _mm256_permute2f128_ps::<0x20>(u[c], u[4 + c])
+                    } else {
+                        _mm256_permute2f128_ps::<0x31>(u[c - 4], u[c])
+                    }
+                })
+            }
         }
 
         #[target_feature(enable = "avx2,fma")]
         pub unsafe fn forward(t: &[f32], x: &[f32], blocks: Blocks, out: &mut [f32]) {
-            let f = blocks.f;
-            let t88: &[[f32; ORDER]; ORDER] = &*(t.as_ptr() as *const [[f32; ORDER]; ORDER]);
-            let xp = x.as_ptr();
-            for r in 0..blocks.rows {
-                let mut i0 = 0;
-                while i0 + LANES <= f {
-                    let base = xp.add((r * f + i0) * ORDER);
-                    let comp = transpose(std::array::from_fn(|b| _mm256_loadu_ps(base.add(b * ORDER))));
-                    for k in 0..ORDER {
-                        let mut acc = _mm256_setzero_ps();
-                        for (a, ca) in comp.iter().enumerate() {
-                            acc = _mm256_fmadd_ps(*ca, _mm256_set1_ps(t[k * ORDER + a]), acc);
+            // SAFETY: this function's contract (its callers check the CPU features it is compiled for
+            // and pass slices of the documented lengths) is what makes the intrinsics, loads and stores
+            // below sound; every pointer offset stays inside those slices.
+            unsafe {
+                let f = blocks.f;
+                let t88: &[[f32; ORDER]; ORDER] = &*(t.as_ptr() as *const [[f32; ORDER]; ORDER]);
+                let xp = x.as_ptr();
+                for r in 0..blocks.rows {
+                    let mut i0 = 0;
+                    while i0 + LANES <= f {
+                        let base = xp.add((r * f + i0) * ORDER);
+                        let comp = transpose(std::array::from_fn(|b| _mm256_loadu_ps(base.add(b * ORDER))));
+                        for k in 0..ORDER {
+                            let mut acc = _mm256_setzero_ps();
+                            for (a, ca) in comp.iter().enumerate() {
+                                acc = _mm256_fmadd_ps(*ca, _mm256_set1_ps(t[k * ORDER + a]), acc);
+                            }
+                            _mm256_storeu_ps(out.as_mut_ptr().add(blocks.at(k, r) + i0), acc);
                         }
-                        _mm256_storeu_ps(out.as_mut_ptr().add(blocks.at(k, r) + i0), acc);
+                        i0 += LANES;
                     }
-                    i0 += LANES;
-                }
-                for i in i0..f {
-                    forward_field(t88, x, blocks, r, i, out);
+                    for i in i0..f {
+                        forward_field(t88, x, blocks, r, i, out);
+                    }
                 }
             }
         }
 
         #[target_feature(enable = "avx2,fma")]
         pub unsafe fn inverse(t: &[f32], xh: &[f32], blocks: Blocks, init: Option<&[f32]>, out: &mut [f32]) {
-            let f = blocks.f;
-            let t88: &[[f32; ORDER]; ORDER] = &*(t.as_ptr() as *const [[f32; ORDER]; ORDER]);
-            let xp = xh.as_ptr();
-            for r in 0..blocks.rows {
-                let mut i0 = 0;
-                while i0 + LANES <= f {
-                    let c0 = match init {
-                        Some(v) => _mm256_loadu_ps(v.as_ptr().add(i0)),
-                        None => _mm256_setzero_ps(),
-                    };
-                    let coef: [__m256; 8] = std::array::from_fn(|k| _mm256_loadu_ps(xp.add(blocks.at(k, r) + i0)));
-                    let vals: [__m256; 8] = std::array::from_fn(|a| {
-                        let mut acc = c0;
-                        for (k, ck) in coef.iter().enumerate() {
-                            acc = _mm256_fmadd_ps(*ck, _mm256_set1_ps(t[k * ORDER + a]), acc);
+            // SAFETY: this function's contract (its callers check the CPU features it is compiled for
+            // and pass slices of the documented lengths) is what makes the intrinsics, loads and stores
+            // below sound; every pointer offset stays inside those slices.
+            unsafe {
+                let f = blocks.f;
+                let t88: &[[f32; ORDER]; ORDER] = &*(t.as_ptr() as *const [[f32; ORDER]; ORDER]);
+                let xp = xh.as_ptr();
+                for r in 0..blocks.rows {
+                    let mut i0 = 0;
+                    while i0 + LANES <= f {
+                        let c0 = match init {
+                            Some(v) => _mm256_loadu_ps(v.as_ptr().add(i0)),
+                            None => _mm256_setzero_ps(),
+                        };
+                        let coef: [__m256; 8] = std::array::from_fn(|k| _mm256_loadu_ps(xp.add(blocks.at(k, r) + i0)));
+                        let vals: [__m256; 8] = std::array::from_fn(|a| {
+                            let mut acc = c0;
+                            for (k, ck) in coef.iter().enumerate() {
+                                acc = _mm256_fmadd_ps(*ck, _mm256_set1_ps(t[k * ORDER + a]), acc);
+                            }
+                            acc
+                        });
+                        let fields = transpose(vals);
+                        let base = out.as_mut_ptr().add((r * f + i0) * ORDER);
+                        for (b, v) in fields.iter().enumerate() {
+                            _mm256_storeu_ps(base.add(b * ORDER), *v);
                         }
-                        acc
-                    });
-                    let fields = transpose(vals);
-                    let base = out.as_mut_ptr().add((r * f + i0) * ORDER);
-                    for (b, v) in fields.iter().enumerate() {
-                        _mm256_storeu_ps(base.add(b * ORDER), *v);
+                        i0 += LANES;
                     }
-                    i0 += LANES;
-                }
-                for i in i0..f {
-                    inverse_field(t88, xh, blocks, init, r, i, out);
+                    for i in i0..f {
+                        inverse_field(t88, xh, blocks, init, r, i, out);
+                    }
                 }
             }
         }
@@ -549,51 +564,64 @@ mod transform {
 
         #[inline(always)]
         unsafe fn idx(v: [i32; 16]) -> __m512i {
-            _mm512_loadu_si512(v.as_ptr() as *const _)
+            // SAFETY: this function's contract (its callers check the CPU features it is compiled for
+            // and pass slices of the documented lengths) is what makes the intrinsics, loads and stores
+            // below sound; every pointer offset stays inside those slices.
+            unsafe { _mm512_loadu_si512(v.as_ptr() as *const _) }
         }
 
         /// 16 fields x 8 components, field-major in `v[0..8]` (two fields each) -> `v[a]` =
         /// component `a` of the 16 fields.
         #[inline(always)]
         unsafe fn fields_to_components(v: [__m512; 8]) -> [__m512; 8] {
-            let s1i = [idx(to_components(1, 0)), idx(to_components(1, 1))];
-            let s2i = [idx(to_components(2, 0)), idx(to_components(2, 1))];
-            let s3i = [idx(to_components(3, 0)), idx(to_components(3, 1))];
-            // s1[g][h]: fields 4 g .. 4 g + 4, components 4 h .. 4 h + 4
-            let s1: [[__m512; 2]; 4] = std::array::from_fn(|g| {
-                std::array::from_fn(|h| _mm512_permutex2var_ps(v[2 * g], s1i[h], v[2 * g + 1]))
-            });
-            // s2[g][h][q]: fields 8 g .. 8 g + 8, components 4 h + 2 q, + 1
-            let s2: [[[__m512; 2]; 2]; 2] = std::array::from_fn(|g| {
-                std::array::from_fn(|h| {
-                    std::array::from_fn(|q| _mm512_permutex2var_ps(s1[2 * g][h], s2i[q], s1[2 * g + 1][h]))
+            // SAFETY: this function's contract (its callers check the CPU features it is compiled for
+            // and pass slices of the documented lengths) is what makes the intrinsics, loads and stores
+            // below sound; every pointer offset stays inside those slices.
+            unsafe {
+                let s1i = [idx(to_components(1, 0)), idx(to_components(1, 1))];
+                let s2i = [idx(to_components(2, 0)), idx(to_components(2, 1))];
+                let s3i = [idx(to_components(3, 0)), idx(to_components(3, 1))];
+                // s1[g][h]: fields 4 g .. 4 g + 4, components 4 h .. 4 h + 4
+                let s1: [[__m512; 2]; 4] = std::array::from_fn(|g| {
+                    std::array::from_fn(|h| _mm512_permutex2var_ps(v[2 * g], s1i[h], v[2 * g + 1]))
+                });
+                // s2[g][h][q]: fields 8 g .. 8 g + 8, components 4 h + 2 q, + 1
+                let s2: [[[__m512; 2]; 2]; 2] = std::array::from_fn(|g| {
+                    std::array::from_fn(|h| {
+                        std::array::from_fn(|q| _mm512_permutex2var_ps(s1[2 * g][h], s2i[q], s1[2 * g + 1][h]))
+                    })
+                });
+                std::array::from_fn(|a| {
+                    let (h, q, c) = (a / 4, (a / 2) % 2, a % 2);
+                    _mm512_permutex2var_ps(s2[0][h][q], s3i[c], s2[1][h][q])
                 })
-            });
-            std::array::from_fn(|a| {
-                let (h, q, c) = (a / 4, (a / 2) % 2, a % 2);
-                _mm512_permutex2var_ps(s2[0][h][q], s3i[c], s2[1][h][q])
-            })
+            }
         }
 
         /// The inverse of [`fields_to_components`].
         #[inline(always)]
         unsafe fn components_to_fields(w: [__m512; 8]) -> [__m512; 8] {
-            let j3 = [idx(to_fields(3, 0)), idx(to_fields(3, 1))];
-            let j2 = [idx(to_fields(2, 0)), idx(to_fields(2, 1))];
-            let j1 = [idx(to_fields(1, 0)), idx(to_fields(1, 1))];
-            let s2: [[[__m512; 2]; 2]; 2] = std::array::from_fn(|g| {
-                std::array::from_fn(|h| {
-                    std::array::from_fn(|q| _mm512_permutex2var_ps(w[4 * h + 2 * q], j3[g], w[4 * h + 2 * q + 1]))
+            // SAFETY: this function's contract (its callers check the CPU features it is compiled for
+            // and pass slices of the documented lengths) is what makes the intrinsics, loads and stores
+            // below sound; every pointer offset stays inside those slices.
+            unsafe {
+                let j3 = [idx(to_fields(3, 0)), idx(to_fields(3, 1))];
+                let j2 = [idx(to_fields(2, 0)), idx(to_fields(2, 1))];
+                let j1 = [idx(to_fields(1, 0)), idx(to_fields(1, 1))];
+                let s2: [[[__m512; 2]; 2]; 2] = std::array::from_fn(|g| {
+                    std::array::from_fn(|h| {
+                        std::array::from_fn(|q| _mm512_permutex2var_ps(w[4 * h + 2 * q], j3[g], w[4 * h + 2 * q + 1]))
+                    })
+                });
+                let s1: [[__m512; 2]; 4] = std::array::from_fn(|g4| {
+                    let (g, t) = (g4 / 2, g4 % 2);
+                    std::array::from_fn(|h| _mm512_permutex2var_ps(s2[g][h][0], j2[t], s2[g][h][1]))
+                });
+                std::array::from_fn(|i| {
+                    let (g4, u) = (i / 2, i % 2);
+                    _mm512_permutex2var_ps(s1[g4][0], j1[u], s1[g4][1])
                 })
-            });
-            let s1: [[__m512; 2]; 4] = std::array::from_fn(|g4| {
-                let (g, t) = (g4 / 2, g4 % 2);
-                std::array::from_fn(|h| _mm512_permutex2var_ps(s2[g][h][0], j2[t], s2[g][h][1]))
-            });
-            std::array::from_fn(|i| {
-                let (g4, u) = (i / 2, i % 2);
-                _mm512_permutex2var_ps(s1[g4][0], j1[u], s1[g4][1])
-            })
+            }
         }
 
         /// Mask of the first `n` lanes (`n <= 16`).
@@ -604,59 +632,69 @@ mod transform {
 
         #[target_feature(enable = "avx512f")]
         pub unsafe fn forward(t: &[f32], x: &[f32], blocks: Blocks, out: &mut [f32]) {
-            let f = blocks.f;
-            let (xp, op) = (x.as_ptr(), out.as_mut_ptr());
-            for r in 0..blocks.rows {
-                let mut i0 = 0;
-                while i0 < f {
-                    let nf = LANES.min(f - i0);
-                    let base = xp.add((r * f + i0) * ORDER);
-                    let v: [__m512; 8] = std::array::from_fn(|b| {
-                        let valid = (nf * ORDER).saturating_sub(b * LANES).min(LANES);
-                        _mm512_maskz_loadu_ps(first(valid), base.add(b * LANES))
-                    });
-                    let comp = fields_to_components(v);
-                    for k in 0..ORDER {
-                        let mut acc = _mm512_setzero_ps();
-                        for (a, ca) in comp.iter().enumerate() {
-                            acc = _mm512_fmadd_ps(*ca, _mm512_set1_ps(t[k * ORDER + a]), acc);
+            // SAFETY: this function's contract (its callers check the CPU features it is compiled for
+            // and pass slices of the documented lengths) is what makes the intrinsics, loads and stores
+            // below sound; every pointer offset stays inside those slices.
+            unsafe {
+                let f = blocks.f;
+                let (xp, op) = (x.as_ptr(), out.as_mut_ptr());
+                for r in 0..blocks.rows {
+                    let mut i0 = 0;
+                    while i0 < f {
+                        let nf = LANES.min(f - i0);
+                        let base = xp.add((r * f + i0) * ORDER);
+                        let v: [__m512; 8] = std::array::from_fn(|b| {
+                            let valid = (nf * ORDER).saturating_sub(b * LANES).min(LANES);
+                            _mm512_maskz_loadu_ps(first(valid), base.add(b * LANES))
+                        });
+                        let comp = fields_to_components(v);
+                        for k in 0..ORDER {
+                            let mut acc = _mm512_setzero_ps();
+                            for (a, ca) in comp.iter().enumerate() {
+                                acc = _mm512_fmadd_ps(*ca, _mm512_set1_ps(t[k * ORDER + a]), acc);
+                            }
+                            _mm512_mask_storeu_ps(op.add(blocks.at(k, r) + i0), first(nf), acc);
                         }
-                        _mm512_mask_storeu_ps(op.add(blocks.at(k, r) + i0), first(nf), acc);
+                        i0 += nf;
                     }
-                    i0 += nf;
                 }
             }
         }
 
         #[target_feature(enable = "avx512f")]
         pub unsafe fn inverse(t: &[f32], xh: &[f32], blocks: Blocks, init: Option<&[f32]>, out: &mut [f32]) {
-            let f = blocks.f;
-            let (xp, op) = (xh.as_ptr(), out.as_mut_ptr());
-            for r in 0..blocks.rows {
-                let mut i0 = 0;
-                while i0 < f {
-                    let nf = LANES.min(f - i0);
-                    let m = first(nf);
-                    let c0 = match init {
-                        Some(v) => _mm512_maskz_loadu_ps(m, v.as_ptr().add(i0)),
-                        None => _mm512_setzero_ps(),
-                    };
-                    let coef: [__m512; 8] =
-                        std::array::from_fn(|k| _mm512_maskz_loadu_ps(m, xp.add(blocks.at(k, r) + i0)));
-                    let vals: [__m512; 8] = std::array::from_fn(|a| {
-                        let mut acc = c0;
-                        for (k, ck) in coef.iter().enumerate() {
-                            acc = _mm512_fmadd_ps(*ck, _mm512_set1_ps(t[k * ORDER + a]), acc);
+            // SAFETY: this function's contract (its callers check the CPU features it is compiled for
+            // and pass slices of the documented lengths) is what makes the intrinsics, loads and stores
+            // below sound; every pointer offset stays inside those slices.
+            unsafe {
+                let f = blocks.f;
+                let (xp, op) = (xh.as_ptr(), out.as_mut_ptr());
+                for r in 0..blocks.rows {
+                    let mut i0 = 0;
+                    while i0 < f {
+                        let nf = LANES.min(f - i0);
+                        let m = first(nf);
+                        let c0 = match init {
+                            Some(v) => _mm512_maskz_loadu_ps(m, v.as_ptr().add(i0)),
+                            None => _mm512_setzero_ps(),
+                        };
+                        let coef: [__m512; 8] =
+                            std::array::from_fn(|k| _mm512_maskz_loadu_ps(m, xp.add(blocks.at(k, r) + i0)));
+                        let vals: [__m512; 8] = std::array::from_fn(|a| {
+                            let mut acc = c0;
+                            for (k, ck) in coef.iter().enumerate() {
+                                acc = _mm512_fmadd_ps(*ck, _mm512_set1_ps(t[k * ORDER + a]), acc);
+                            }
+                            acc
+                        });
+                        let fields = components_to_fields(vals);
+                        let base = op.add((r * f + i0) * ORDER);
+                        for (b, v) in fields.iter().enumerate() {
+                            let valid = (nf * ORDER).saturating_sub(b * LANES).min(LANES);
+                            _mm512_mask_storeu_ps(base.add(b * LANES), first(valid), *v);
                         }
-                        acc
-                    });
-                    let fields = components_to_fields(vals);
-                    let base = op.add((r * f + i0) * ORDER);
-                    for (b, v) in fields.iter().enumerate() {
-                        let valid = (nf * ORDER).saturating_sub(b * LANES).min(LANES);
-                        _mm512_mask_storeu_ps(base.add(b * LANES), first(valid), *v);
+                        i0 += nf;
                     }
-                    i0 += nf;
                 }
             }
         }
@@ -666,7 +704,7 @@ mod transform {
     mod tests {
         use super::*;
 
-        use equigym_nn::hashed_values as data;
+        use crate::hashed_values as data;
 
         /// The dispatched copy (AVX-512 where the CPU has it) gives the portable chains' bits,
         /// for field counts below, at and above a register block, and the inverse undoes the
@@ -682,7 +720,7 @@ mod transform {
                 forward(&t, &x, rows, f, &mut fast);
                 forward_body(&t, &x, blocks, &mut slow);
                 #[cfg(target_arch = "x86_64")]
-                if equigym_nn::has_fast_fma() {
+                if crate::has_fast_fma() {
                     let (mut v2, mut back2, mut back2_slow) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
                     // SAFETY: the CPU has AVX2 and FMA.
                     unsafe { avx2::forward(t.as_flattened(), &x, blocks, &mut v2) };
