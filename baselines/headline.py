@@ -24,7 +24,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from baselines import steer
-from baselines.report import LABELS, load_runs, mean_se, write_report
+from equigym.report import LABELS, load_runs, mean_se, write_report
 from equigym.steer import RECIPES
 
 

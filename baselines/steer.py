@@ -42,24 +42,14 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 import equigym  # noqa: F401  (registers the ids)
 from baselines.agents import EQUI_INITS, EquiSACPolicy, LayerNormSACPolicy, count_parameters
+from equigym import _core
 from equigym.wrappers import TerminateOnSuccess
 
 METHODS = ("dsrl", "equi", "approx", "sac")
 LATENT_IDS = {"lift": "EquiLift-Latent-v0", "stack": "EquiStack-Latent-v0", "square": "EquiSquare-Latent-v0"}
 RAW_IDS = {"lift": "EquiLift-v0", "stack": "EquiStack-v0", "square": "EquiSquare-v0"}
-PRESETS = {
-    "cpu": {"width": 64, "layers": 3, "utd": 4, "batch": 256, "n_envs": 4, "warmup": 1000, "ent_init": 0.2},
-    "paper": {
-        "width": 2048,
-        "layers": 3,
-        "utd": 30,
-        "utd_square": 20,
-        "batch": 256,
-        "n_envs": 4,
-        "warmup": 6000,
-        "ent_init": 1.0,
-    },
-}
+#: The network and schedule presets, from their one home in the Rust agents (``Preset::named``).
+PRESETS = {name: {k: v for k, v in _core.steer_preset(name).items() if v is not None} for name in ("cpu", "paper")}
 
 
 class LatentSAC(SAC):
@@ -423,7 +413,7 @@ def main(argv: list[str] | None = None) -> None:
     r.add_argument("--out", default="docs/steering")
     a = p.parse_args(argv)
     if a.cmd == "report":
-        from baselines.report import write_report
+        from equigym.report import write_report
 
         print(write_report(a.runs, a.out))
     elif a.cmd == "base":

@@ -71,3 +71,9 @@ else:
     raise SystemExit("equigym.replay imported without torch")
 print("optional extras: clear message when missing")
 PY
+
+# The steering report runs from the installed package (it imports nothing from the checkout's
+# baselines/) on a committed run directory; without the plot extra it writes the tables only.
+"$WORK/venv/bin/python" -m equigym.steer report --runs "$ROOT/docs/steering/arm4/stack-recipe" --out "$WORK/report" >/dev/null
+grep -q "DSRL (Rust)" "$WORK/report/table.md"
+echo "equigym.steer report: works from the wheel"

@@ -11,7 +11,7 @@ pytest.importorskip("escnn")
 pytest.importorskip("stable_baselines3")
 
 from baselines import steer  # noqa: E402
-from baselines.report import write_report  # noqa: E402
+from equigym.report import write_report  # noqa: E402
 
 TINY = {"name": "tiny", "width": 16, "layers": 1, "utd": 1, "batch": 16, "n_envs": 2, "warmup": 8, "ent_init": 1.0}
 
@@ -72,3 +72,21 @@ def test_report_labels_both_agents_and_shows_single_seeds_without_an_error_bar(t
     assert "| Equi-DSRL (SB3) | Equi-DSRL (Rust) |" in text
     assert "0.600 (1 seed, 16 steps)" in text and "0.650 +- 0.050 (2 seeds, 16 steps)" in text
     assert "nan" not in text
+
+
+def test_the_sb3_runner_reads_the_presets_from_their_rust_home():
+    from equigym import _core
+    from equigym.errors import InvalidInputError
+
+    assert steer.PRESETS["cpu"] == {
+        "width": 64,
+        "layers": 3,
+        "utd": 4,
+        "batch": 256,
+        "n_envs": 4,
+        "warmup": 1000,
+        "ent_init": 0.2,
+    }
+    assert steer.PRESETS["paper"]["utd_square"] == 20 and steer.PRESETS["paper"]["width"] == 2048
+    with pytest.raises(InvalidInputError, match="preset must be"):
+        _core.steer_preset("gpu")

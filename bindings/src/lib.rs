@@ -272,6 +272,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<vector::VecEnv>()?;
     m.add_function(wrap_pyfunction!(symmetry::measure_symmetry_breaking, m)?)?;
     m.add_function(wrap_pyfunction!(steer::steer_run, m)?)?;
+    m.add_function(wrap_pyfunction!(steer::steer_preset, m)?)?;
     m.add_function(wrap_pyfunction!(steer::steer_gradcase, m)?)?;
     m.add_function(wrap_pyfunction!(steer::evaluate_base, m)?)?;
     m.add_function(wrap_pyfunction!(wilson, m)?)?;

@@ -8,6 +8,24 @@ use pyo3::types::PyDict;
 
 use crate::errors::to_py;
 
+/// The network and schedule preset `name` (`"cpu"` or `"paper"`) as a dict: width, layers,
+/// utd, utd_square (None where it is utd), batch, n_envs, warmup, ent_init. The one home of the
+/// presets; the SB3 runner (`baselines.steer`) reads them from here.
+#[pyfunction]
+pub fn steer_preset<'py>(py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyDict>> {
+    let p = Preset::named(name).map_err(to_py)?;
+    let d = PyDict::new(py);
+    d.set_item("width", p.width)?;
+    d.set_item("layers", p.layers)?;
+    d.set_item("utd", p.utd)?;
+    d.set_item("utd_square", p.utd_square)?;
+    d.set_item("batch", p.batch)?;
+    d.set_item("n_envs", p.n_envs)?;
+    d.set_item("warmup", p.warmup)?;
+    d.set_item("ent_init", p.ent_init)?;
+    Ok(d)
+}
+
 /// Train one steering agent in Rust (see `python -m equigym.steer run --help`); returns a dict
 /// with the run directory, the log rows, step counts, seconds and a hash of the final weights.
 #[pyfunction]

@@ -3,7 +3,6 @@
 //! Actions are 10-d absolute end-effector targets: TCP position (3), 6D rotation (6: the first
 //! two rows of the rotation matrix) and gripper width (1, metres), applied at 20 Hz.
 
-use std::path::PathBuf;
 use std::sync::Arc;
 
 use nalgebra::{Isometry3, Translation3};
@@ -16,48 +15,18 @@ use crate::options::EnvSpec;
 use crate::rng::EpisodeRng;
 use crate::robot::{load_urdf, parse_urdf, IkReport, RobotModel};
 use crate::scene::Scene;
-use crate::tasks::{make_task, Evaluation, RewardKind, Task, TaskOptions};
-use crate::world::PhysicsConfig;
+use crate::tasks::{make_task, Evaluation, RewardKind, Task};
 
 /// The robot description shipped with equigym.
 pub const PANDA_URDF: &str = include_str!("../../assets/panda/panda.urdf");
 
-/// Dimension of every task's action.
-pub const ACTION_DIM: usize = 10;
+pub use crate::layout::ACTION_DIM;
+pub use crate::options::EnvConfig;
 
 /// Bounds of the raw (absolute) action space: TCP position box, 6D rotation in [-1, 1],
 /// gripper width in [0, max width].
 pub const POSITION_LOW: [f64; 3] = [-0.5, -0.5, 0.75];
 pub const POSITION_HIGH: [f64; 3] = [0.5, 0.5, 1.35];
-
-/// How an environment is built.
-#[derive(Clone, Debug, PartialEq)]
-pub struct EnvConfig {
-    pub task: String,
-    pub reward: RewardKind,
-    pub physics: PhysicsConfig,
-    /// A URDF to load instead of the shipped Panda.
-    pub urdf: Option<PathBuf>,
-    /// Std of the Gaussian noise added to the home joint configuration at reset (rad).
-    pub init_joint_noise: f64,
-    /// Episode length override (control steps).
-    pub horizon: Option<usize>,
-    pub task_options: TaskOptions,
-}
-
-impl EnvConfig {
-    pub fn new(task: &str) -> Self {
-        Self {
-            task: task.to_string(),
-            reward: RewardKind::Sparse,
-            physics: PhysicsConfig::default(),
-            urdf: None,
-            init_joint_noise: crate::options::DEFAULT_INIT_JOINT_NOISE,
-            horizon: None,
-            task_options: TaskOptions::default(),
-        }
-    }
-}
 
 /// What `step` returns.
 #[derive(Clone, Debug, PartialEq)]

@@ -7,6 +7,9 @@
 
 use serde::{Deserialize, Serialize};
 
+/// Dimension of every task's action: TCP position (3), 6D rotation (6), gripper width (1).
+pub const ACTION_DIM: usize = 10;
+
 /// How a field transforms under a rotation about the world z axis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum FieldKind {

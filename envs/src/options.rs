@@ -15,14 +15,42 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-use crate::env::EnvConfig;
 use crate::error::{EnvError, Result};
-use crate::layout::Layout;
+use crate::layout::{Layout, ACTION_DIM};
 use crate::tasks::{RewardKind, TaskOptions};
 use crate::PhysicsConfig;
 
 /// Std of the Gaussian noise added to the home joint configuration at reset (rad), by default.
 pub const DEFAULT_INIT_JOINT_NOISE: f64 = 0.02;
+
+/// How an environment is built.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EnvConfig {
+    pub task: String,
+    pub reward: RewardKind,
+    pub physics: PhysicsConfig,
+    /// A URDF to load instead of the shipped Panda.
+    pub urdf: Option<PathBuf>,
+    /// Std of the Gaussian noise added to the home joint configuration at reset (rad).
+    pub init_joint_noise: f64,
+    /// Episode length override (control steps).
+    pub horizon: Option<usize>,
+    pub task_options: TaskOptions,
+}
+
+impl EnvConfig {
+    pub fn new(task: &str) -> Self {
+        Self {
+            task: task.to_string(),
+            reward: RewardKind::Sparse,
+            physics: PhysicsConfig::default(),
+            urdf: None,
+            init_joint_noise: DEFAULT_INIT_JOINT_NOISE,
+            horizon: None,
+            task_options: TaskOptions::default(),
+        }
+    }
+}
 
 /// Which arm controller turns absolute pose targets into motion.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -142,8 +170,8 @@ pub struct EnvSpec {
     pub control_period: f64,
     pub max_gripper_width: f64,
     /// Lower and upper bounds of the raw action.
-    pub action_low: [f64; crate::env::ACTION_DIM],
-    pub action_high: [f64; crate::env::ACTION_DIM],
+    pub action_low: [f64; ACTION_DIM],
+    pub action_high: [f64; ACTION_DIM],
     pub observation_layout: Layout,
     pub action_layout: Layout,
 }

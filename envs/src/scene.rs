@@ -21,7 +21,8 @@ use crate::robot::kinematics::MAX_DOF;
 use crate::robot::{Controller, IkOptions, IkReport, RobotModel, RobotRig};
 use crate::world::{build_world, PhysicsConfig, TableSpec, WorldColliders};
 
-pub use crate::world::{colour_code, link_shape, GROUP_OBJECT, GROUP_ROBOT, GROUP_STATIC};
+pub use crate::robot::rig::link_shape;
+pub use crate::world::{colour_code, GROUP_OBJECT, GROUP_ROBOT, GROUP_STATIC};
 
 /// IK tolerance (m, rad) when the robot is moved for a symmetry probe.
 const TRANSFORM_IK_TOLERANCE: f64 = 1e-8;

@@ -42,13 +42,10 @@
 //! 4.31 / 3.90 / 3.09 mm into objects (measured before the depth query's GJK check, which can
 //! only lower them), no better than without it.
 
-use nalgebra::Isometry3;
 use rapier3d::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{EnvError, Result};
-use crate::math::to_pose;
-use crate::robot::{LinkShape, ShapeKind};
 
 /// Membership of every robot collider (objects and the table filter on it).
 pub const GROUP_ROBOT: Group = Group::GROUP_1;
@@ -341,36 +338,6 @@ pub fn deepest_penetration(
         }
     }
     deepest
-}
-
-pub fn shape_of(s: &ShapeKind) -> SharedShape {
-    match s {
-        ShapeKind::Cuboid { half_extents: h } => SharedShape::cuboid(h.x as f32, h.y as f32, h.z as f32),
-        ShapeKind::Cylinder { radius, half_height } => SharedShape::cylinder(*half_height as f32, *radius as f32),
-        ShapeKind::Capsule { radius, half_height } => SharedShape::capsule_z(*half_height as f32, *radius as f32),
-        ShapeKind::Ball { radius } => SharedShape::ball(*radius as f32),
-    }
-}
-
-/// rapier's cylinders run along y; URDF's along z.
-fn shape_pose(s: &LinkShape) -> Isometry3<f64> {
-    match s.shape {
-        ShapeKind::Cylinder { .. } => {
-            s.pose * nalgebra::UnitQuaternion::from_euler_angles(std::f64::consts::FRAC_PI_2, 0.0, 0.0)
-        }
-        _ => s.pose,
-    }
-}
-
-/// A link shape as a rapier shape and its pose in the link frame.
-pub fn link_shape(s: &LinkShape) -> (SharedShape, Isometry3<f64>) {
-    (shape_of(&s.shape), shape_pose(s))
-}
-
-/// A collider for a link shape placed at `offset * shape pose` in its body's frame.
-pub fn link_collider(s: &LinkShape, offset: &Isometry3<f64>) -> ColliderBuilder {
-    let (shape, pose) = link_shape(s);
-    ColliderBuilder::new(shape).position(to_pose(&(offset * pose))).density(0.0)
 }
 
 #[cfg(test)]

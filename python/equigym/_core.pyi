@@ -308,6 +308,7 @@ class LatentVecEnv:
     @property
     def bound(self) -> float: ...
 
+def steer_preset(name: Literal["cpu", "paper"]) -> dict[str, Any]: ...
 def steer_run(
     method: Literal["dsrl", "equi", "approx"],
     task: str,

@@ -18,7 +18,7 @@ Results do not depend on ``--threads``.
 local Ray by default, ``--address`` joins a cluster. Each trial advances its run one evaluation
 interval at a time (each call resumes the agent's own checkpoint, so this changes nothing in the
 results) and reports to Tune after each; ``--resume`` restores an interrupted sweep with
-``Tuner.restore``. ``--sb3`` adds the SB3 + escnn baselines (``baselines.steer.run``, needs the
+``Tuner.restore``. ``--sb3`` adds the SB3 + escnn baselines (``python -m baselines.steer run``, needs the
 ``train`` extra), written under ``<out>/sb3``; the Rust runs go under ``<out>/rust``.
 """
 
@@ -134,26 +134,7 @@ def _trainable(config: dict[str, Any]) -> None:
             last = s["rows"][-1] if s["rows"] else (0, float("nan"), float("nan"), 0.0)
             metrics = {"env_steps": last[0], "success_rate": last[1], "mean_q": last[2], "run_seconds": s["seconds"]}
         else:
-            from baselines.steer import PRESETS
-            from baselines.steer import run as sb3_run
-
-            preset = {"name": c["preset"], **PRESETS[c["preset"]]}
-            if c["ent_init"] is not None:
-                preset["ent_init"] = c["ent_init"]
-            d = sb3_run(
-                c["method"],
-                c["task"],
-                c["seed"],
-                target,
-                c["out"],
-                preset,
-                c["joint_limits"],
-                every,
-                c["eval_episodes"],
-                c["policy"],
-                progress=False,
-                terminate_on_success=c.get("terminate_on_success", False),
-            )
+            d = _run_sb3(c, target)
             rows = (d / "log.csv").read_text().strip().splitlines()[1:]
             last = [float(v) for v in rows[-1].split(",")] if rows else [0, float("nan"), float("nan"), 0.0]
             metrics = {"env_steps": int(last[0]), "success_rate": last[1], "mean_q": last[2], "run_seconds": last[3]}
@@ -164,6 +145,28 @@ def _trainable(config: dict[str, Any]) -> None:
         if target >= c["steps"]:
             return
         target += every
+
+
+def _run_sb3(c: dict[str, Any], steps: int) -> Path:
+    """Advance one SB3 + escnn run to ``steps`` with its command, ``python -m baselines.steer run``:
+    that runner lives in the source checkout, not in the package, which imports nothing from it
+    (the sweep puts the checkout on its trials' ``PYTHONPATH``). Returns the run's directory."""
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "baselines.steer", "run", "--method", c["method"], "--task", c["task"]]
+    cmd += ["--seed", str(c["seed"]), "--steps", str(steps), "--out", str(c["out"]), "--preset", c["preset"]]
+    cmd += ["--eval-every", str(c["eval_every"]), "--eval-episodes", str(c["eval_episodes"]), "--no-progress"]
+    if c["ent_init"] is not None:
+        cmd += ["--ent-init", repr(float(c["ent_init"]))]
+    if not c["joint_limits"]:
+        cmd.append("--no-joint-limits")
+    if c["policy"]:
+        cmd += ["--policy", str(c["policy"])]
+    if c.get("terminate_on_success"):
+        cmd.append("--terminate-on-success")
+    subprocess.run(cmd, check=True)
+    return Path(c["out"]) / f"{c['task']}{'' if c['joint_limits'] else '-nolimits'}" / c["method"] / f"seed{c['seed']}"
 
 
 def sweep_jobs(methods: list[str], seeds: list[int], sb3: list[str], sb3_seeds: list[int]) -> list[dict[str, Any]]:
@@ -266,7 +269,7 @@ def sweep(a: argparse.Namespace) -> None:
 
 
 def report(a: argparse.Namespace) -> str:
-    from baselines.report import write_report
+    from equigym.report import write_report
 
     roots = [a.runs] + ([a.sb3_runs] if a.sb3_runs else [])
     text = write_report(roots, a.out)

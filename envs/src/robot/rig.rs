@@ -31,11 +31,10 @@ use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use rapier3d::prelude::*;
 
 use super::{LinkInertia, RobotModel};
+use super::{LinkShape, ShapeKind};
 use crate::error::{EnvError, Result};
 use crate::math::{from_pose, to_pose, to_vector};
-use crate::world::{
-    colour_code, link_collider, PhysicsConfig, FIRST_LINK_GROUP_BIT, GROUP_OBJECT, GROUP_ROBOT, GROUP_STATIC,
-};
+use crate::world::{colour_code, PhysicsConfig, FIRST_LINK_GROUP_BIT, GROUP_OBJECT, GROUP_ROBOT, GROUP_STATIC};
 
 /// Finger pads are rubber: their friction is this multiple of the scene's.
 pub const FINGER_PAD_FRICTION: f64 = 2.0;
@@ -542,4 +541,35 @@ impl RobotRig {
     pub fn moving_bodies(&self) -> impl Iterator<Item = RigidBodyHandle> + '_ {
         self.link_bodies[1..].iter().chain(&self.finger_bodies).copied()
     }
+}
+
+/// A link shape as a rapier shape.
+pub fn shape_of(s: &ShapeKind) -> SharedShape {
+    match s {
+        ShapeKind::Cuboid { half_extents: h } => SharedShape::cuboid(h.x as f32, h.y as f32, h.z as f32),
+        ShapeKind::Cylinder { radius, half_height } => SharedShape::cylinder(*half_height as f32, *radius as f32),
+        ShapeKind::Capsule { radius, half_height } => SharedShape::capsule_z(*half_height as f32, *radius as f32),
+        ShapeKind::Ball { radius } => SharedShape::ball(*radius as f32),
+    }
+}
+
+/// rapier's cylinders run along y; URDF's along z.
+fn shape_pose(s: &LinkShape) -> Isometry3<f64> {
+    match s.shape {
+        ShapeKind::Cylinder { .. } => {
+            s.pose * nalgebra::UnitQuaternion::from_euler_angles(std::f64::consts::FRAC_PI_2, 0.0, 0.0)
+        }
+        _ => s.pose,
+    }
+}
+
+/// A link shape as a rapier shape and its pose in the link frame.
+pub fn link_shape(s: &LinkShape) -> (SharedShape, Isometry3<f64>) {
+    (shape_of(&s.shape), shape_pose(s))
+}
+
+/// A collider for a link shape placed at `offset * shape pose` in its body's frame.
+pub fn link_collider(s: &LinkShape, offset: &Isometry3<f64>) -> ColliderBuilder {
+    let (shape, pose) = link_shape(s);
+    ColliderBuilder::new(shape).position(to_pose(&(offset * pose))).density(0.0)
 }

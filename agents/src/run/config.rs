@@ -1,0 +1,234 @@
+//! What a steering run is: its options ([`RunConfig`]), the network and schedule presets
+//! ([`Preset`]), DSRL's constants, the checks on a configuration and the fingerprint that a
+//! checkpoint must match to be resumed.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::models::Method;
+
+/// Learning rate, Polyak rate and target entropy (DSRL's).
+pub const LEARNING_RATE: f64 = 3e-4;
+pub const TAU: f64 = 0.005;
+pub const TARGET_ENTROPY: f64 = 0.0;
+/// Discount: 0.999 for Square, 0.99 otherwise.
+pub const GAMMA: f64 = 0.99;
+pub const GAMMA_SQUARE: f64 = 0.999;
+/// Evaluation defaults of `baselines/steer.py`.
+pub const EVAL_EVERY: usize = 2000;
+pub const EVAL_EPISODES: usize = 50;
+/// Replay transitions whose mean Q the log reports.
+pub const MEAN_Q_SAMPLE: usize = 256;
+
+/// Shipped diffusion policies (`assets/edp/<task>.safetensors`) in the source tree.
+pub const DEFAULT_POLICY_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../assets/edp");
+
+/// Network width, depth and schedule (`baselines/steer.py`'s presets).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Preset {
+    pub name: String,
+    pub width: usize,
+    pub layers: usize,
+    pub utd: usize,
+    /// UTD for Square where it differs (the paper: 20 instead of 30).
+    pub utd_square: Option<usize>,
+    pub batch: usize,
+    pub n_envs: usize,
+    /// Warm-up transitions (latent steps summed over environments).
+    pub warmup: usize,
+    pub ent_init: f64,
+}
+
+impl Preset {
+    /// `cpu` (3 x 64, UTD 4, entropy coefficient from 0.2) or `paper` (3 x 2048, UTD 30/20).
+    pub fn named(name: &str) -> Result<Self> {
+        match name {
+            "cpu" => Ok(Self {
+                name: name.into(),
+                width: 64,
+                layers: 3,
+                utd: 4,
+                utd_square: None,
+                batch: 256,
+                n_envs: 4,
+                warmup: 1000,
+                ent_init: 0.2,
+            }),
+            "paper" => Ok(Self {
+                name: name.into(),
+                width: 2048,
+                layers: 3,
+                utd: 30,
+                utd_square: Some(20),
+                batch: 256,
+                n_envs: 4,
+                warmup: 6000,
+                ent_init: 1.0,
+            }),
+            other => Err(Error::InvalidOption(format!("preset must be 'cpu' or 'paper', got '{other}'"))),
+        }
+    }
+}
+
+/// Everything a run needs.
+#[derive(Clone, Debug)]
+pub struct RunConfig {
+    pub method: Method,
+    pub task: String,
+    pub seed: u64,
+    /// Primitive environment steps.
+    pub steps: usize,
+    pub out: PathBuf,
+    /// Threads for environments and denoising (0: one per core). Results do not depend on it.
+    pub threads: usize,
+    pub preset: Preset,
+    pub joint_limits: bool,
+    /// Arm controller: None keeps the environment's default, Some(true) Cartesian, Some(false) joint.
+    pub cartesian: Option<bool>,
+    pub eval_every: usize,
+    pub eval_episodes: usize,
+    /// Diffusion policy file (default: the shipped one for the task).
+    pub policy: Option<PathBuf>,
+    /// Initial entropy coefficient (default: the preset's).
+    pub ent_init: Option<f64>,
+    /// Episode length override (control steps); tests use short episodes.
+    pub horizon: Option<usize>,
+    /// Reset-distribution variant ("D0", "D1", "D2"; None: the task's default, which is the
+    /// shipped policy's).
+    pub variant: Option<String>,
+    /// End training episodes at the first latent step that succeeds (a terminal transition,
+    /// then a reset) instead of running them to the horizon as DSRL does. The return then
+    /// counts the steps to success, the quantity the evaluation measures, rather than the time
+    /// spent successful, which after a lift depends on a part of the task the demos never show.
+    /// Evaluation is unchanged.
+    pub terminate_on_success: bool,
+    /// Noise aliasing (DSRL-NA, [`Sac::train_step_aliased`]): an action-space critic trained by
+    /// TD on the executed chunks, the noise critic distilled from it. Any method: the action
+    /// critic has the noise critic's architecture (equivariant nets: invariant, since a chunk
+    /// has the noise's representation).
+    pub noise_aliased: bool,
+    /// Target entropy of the actor (default: DSRL's 0). With target 0 the 40-d latent actor
+    /// narrows to a std of about 0.3, and narrow noise is what the shipped EDPs do worst with
+    /// (docs/steering.md, "Steerability").
+    pub target_entropy: Option<f64>,
+    /// Print a line per evaluation to stderr.
+    pub progress: bool,
+    /// Stop (as if killed) right after the checkpoint of this many evaluations (tests).
+    pub stop_after_evals: Option<usize>,
+}
+
+impl RunConfig {
+    pub fn new(method: Method, task: &str, seed: u64, steps: usize, out: impl Into<PathBuf>) -> Result<Self> {
+        Ok(Self {
+            method,
+            task: task.into(),
+            seed,
+            steps,
+            out: out.into(),
+            threads: 1,
+            preset: Preset::named("cpu")?,
+            joint_limits: true,
+            cartesian: None,
+            eval_every: EVAL_EVERY,
+            eval_episodes: EVAL_EPISODES,
+            policy: None,
+            ent_init: None,
+            horizon: None,
+            variant: None,
+            terminate_on_success: false,
+            noise_aliased: false,
+            target_entropy: None,
+            progress: false,
+            stop_after_evals: None,
+        })
+    }
+
+    /// `out/<task>[-nolimits][-joint|-cartesian]/<method>/seed<S>` (the SB3 runs' layout).
+    pub fn run_dir(&self) -> PathBuf {
+        let mut task = self.task.clone();
+        if !self.joint_limits {
+            task.push_str("-nolimits");
+        }
+        match self.cartesian {
+            Some(true) => task.push_str("-cartesian"),
+            Some(false) => task.push_str("-joint"),
+            None => {}
+        }
+        self.out.join(task).join(self.method.name()).join(format!("seed{}", self.seed))
+    }
+
+    pub(crate) fn policy_path(&self) -> PathBuf {
+        self.policy.clone().unwrap_or_else(|| Path::new(DEFAULT_POLICY_DIR).join(format!("{}.safetensors", self.task)))
+    }
+
+    pub(super) fn gamma(&self) -> f64 {
+        if self.task == "square" {
+            GAMMA_SQUARE
+        } else {
+            GAMMA
+        }
+    }
+
+    pub(super) fn utd(&self) -> usize {
+        if self.task == "square" {
+            self.preset.utd_square.unwrap_or(self.preset.utd)
+        } else {
+            self.preset.utd
+        }
+    }
+
+    /// What must match for a checkpoint to be resumed (not steps, threads or output place).
+    pub(super) fn fingerprint(&self) -> String {
+        // Options added later append themselves only when set, so that earlier runs' checkpoints
+        // keep their fingerprints.
+        let mut later = [(self.terminate_on_success, "|terminate_on_success"), (self.noise_aliased, "|noise_aliased")]
+            .iter()
+            .filter(|(on, _)| *on)
+            .map(|(_, s)| *s)
+            .collect::<String>();
+        if let Some(t) = self.target_entropy {
+            later.push_str(&format!("|target_entropy={t:?}"));
+        }
+        if let Some(v) = &self.variant {
+            later.push_str(&format!("|variant={v}"));
+        }
+        format!(
+            "{}|{}|{}|{:?}|{}|{:?}|{}|{}|{}|{:?}|{:?}",
+            self.method.name(),
+            self.task,
+            self.seed,
+            self.preset,
+            self.joint_limits,
+            self.cartesian,
+            self.eval_every,
+            self.eval_episodes,
+            self.policy_path().display(),
+            self.ent_init,
+            self.horizon
+        ) + &later
+    }
+
+    pub(crate) fn validate(&self) -> Result<()> {
+        let p = &self.preset;
+        let bad = |m: String| Err(Error::InvalidOption(m));
+        if !equigym_envs::tasks::TASK_IDS.contains(&self.task.as_str()) {
+            return bad(format!("task must be one of {:?}, got '{}'", equigym_envs::tasks::TASK_IDS, self.task));
+        }
+        if p.n_envs == 0 || p.batch == 0 || p.utd == 0 {
+            return bad(format!("preset needs n_envs, batch and utd >= 1, got {p:?}"));
+        }
+        if self.eval_every == 0 || self.eval_episodes == 0 {
+            return bad("eval_every and eval_episodes must be >= 1".into());
+        }
+        if self.target_entropy.is_some_and(|t| !t.is_finite()) {
+            return bad(format!("the target entropy must be finite, got {:?}", self.target_entropy));
+        }
+        let ent = self.ent_init.unwrap_or(p.ent_init);
+        if !(ent.is_finite() && ent > 0.0) {
+            return bad(format!("the initial entropy coefficient must be positive, got {ent}"));
+        }
+        Ok(())
+    }
+}
