@@ -316,6 +316,99 @@ impl<T: Real> ActionCritics<T> {
 /// normalised action chunks (rows x latent dim), for the noise-aliased step.
 pub type ChunkDecoder<'a, T> = dyn FnMut(&[T], &[T], usize, &mut Vec<T>) + 'a;
 
+/// What training changes in a learner and a checkpoint keeps: the nets' parameters, the
+/// entropy coefficient and the optimisers (the action critics too, for the noise-aliased one).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SacState {
+    actor: Vec<f32>,
+    critics: [Vec<f32>; 2],
+    targets: [Vec<f32>; 2],
+    log_alpha: f32,
+    opt_actor: Adam<f32>,
+    opt_critics: [Adam<f32>; 2],
+    opt_alpha: Adam<f32>,
+    action_critics: Option<ActionCriticState>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct ActionCriticState {
+    critics: [Vec<f32>; 2],
+    targets: [Vec<f32>; 2],
+    opt: [Adam<f32>; 2],
+}
+
+fn twin_params(nets: &[Net<f32>; 2]) -> [Vec<f32>; 2] {
+    [nets[0].params.clone(), nets[1].params.clone()]
+}
+
+/// Saved parameters into twin nets (sizes already checked), re-expanded.
+fn load_twins(nets: &mut [Net<f32>; 2], params: [Vec<f32>; 2]) {
+    for (n, p) in nets.iter_mut().zip(params) {
+        n.params = p;
+        n.expand();
+    }
+}
+
+impl Sac<f32> {
+    /// The learner's trainable state (see [`SacState`]).
+    pub fn state(&self) -> SacState {
+        SacState {
+            actor: self.actor.params.clone(),
+            critics: twin_params(&self.critics),
+            targets: twin_params(&self.targets),
+            log_alpha: self.log_alpha,
+            opt_actor: self.opt_actor.clone(),
+            opt_critics: self.opt_critics.clone(),
+            opt_alpha: self.opt_alpha.clone(),
+            action_critics: self.aliased.as_ref().map(|na| ActionCriticState {
+                critics: twin_params(&na.critics),
+                targets: twin_params(&na.targets),
+                opt: na.opt.clone(),
+            }),
+        }
+    }
+
+    /// Put a saved state back; every size is checked first, so a state of another architecture
+    /// changes nothing and says which net does not fit.
+    pub fn set_state(&mut self, s: SacState) -> std::result::Result<(), String> {
+        let fit = |name: &str, got: usize, want: usize| {
+            if got == want {
+                Ok(())
+            } else {
+                Err(format!("{name} has {got} parameters, expected {want}"))
+            }
+        };
+        let fit_twins = |name: &str, saved: &[Vec<f32>; 2], nets: &[Net<f32>; 2]| {
+            saved.iter().zip(nets).try_for_each(|(s, n)| fit(name, s.len(), n.num_params()))
+        };
+        fit("actor", s.actor.len(), self.actor.num_params())?;
+        fit_twins("critic", &s.critics, &self.critics)?;
+        fit_twins("target critic", &s.targets, &self.targets)?;
+        match (&self.aliased, &s.action_critics) {
+            (Some(na), Some(a)) => {
+                fit_twins("action critic", &a.critics, &na.critics)?;
+                fit_twins("action target", &a.targets, &na.targets)?;
+            }
+            (None, None) => {}
+            _ => return Err("action critics saved for a run without noise aliasing, or missing".into()),
+        }
+        self.actor.params = s.actor;
+        self.actor.expand();
+        load_twins(&mut self.critics, s.critics);
+        load_twins(&mut self.targets, s.targets);
+        if let (Some(na), Some(a)) = (self.aliased.as_mut(), s.action_critics) {
+            load_twins(&mut na.critics, a.critics);
+            load_twins(&mut na.targets, a.targets);
+            na.opt = a.opt;
+        }
+        self.log_alpha = s.log_alpha;
+        self.opt_actor = s.opt_actor;
+        self.opt_critics = s.opt_critics;
+        self.opt_alpha = s.opt_alpha;
+        Ok(())
+    }
+}
+
 /// The SAC learner: networks, targets, optimisers, entropy coefficient.
 pub struct Sac<T> {
     pub config: SacConfig,

@@ -17,7 +17,6 @@ use pyo3::types::{PyBytes, PyDict, PyTuple};
 
 use crate::errors::{invalid_input, to_py};
 use crate::options::{env_config, options_kwargs};
-use crate::vector::{obs_array, reset_batch, step_batch, StepOut};
 use crate::{info_dict, Spec};
 
 /// An exported equivariant diffusion policy, run in Rust (batched deterministic DDIM).
@@ -271,7 +270,7 @@ pub struct LatentVecEnv {
     stepping: f64,
 }
 
-crate::vector::batch_properties!(LatentVecEnv);
+crate::vector::batch_properties!(LatentVecEnv, "latent actions");
 
 #[pymethods]
 impl LatentVecEnv {
@@ -309,22 +308,6 @@ impl LatentVecEnv {
         Ok(Self { inner: latent_batch(envs, threads, mode).map_err(to_py)?, spec, stepping: 0.0 })
     }
 
-    /// Reset the environments (all, or those where `mask` is true), one seed each.
-    #[pyo3(signature = (seeds, mask=None))]
-    fn reset<'py>(
-        &mut self,
-        py: Python<'py>,
-        seeds: Vec<u64>,
-        mask: Option<Vec<bool>>,
-    ) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        reset_batch(py, &mut self.inner, seeds, mask)
-    }
-
-    /// Step with a (B, latent_dim) float64 array; returns what `VecEnv.step` returns.
-    fn step<'py>(&mut self, py: Python<'py>, latents: PyReadonlyArray2<'py, f64>) -> PyResult<StepOut<'py>> {
-        step_batch(py, &mut self.inner, "latent actions", latents, &mut self.stepping)
-    }
-
     /// Primitive steps each environment's last latent step executed (0 where it was reset).
     fn executed<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u64>> {
         (0..self.inner.num_envs())
@@ -349,12 +332,6 @@ impl LatentVecEnv {
             .map_err(|e| invalid_input(e.to_string()))
     }
 
-    fn observe<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
-        obs_array(&self.inner, |i| self.inner.obs(i)).into_pyarray(py)
-    }
-    fn episode_seeds<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u64>> {
-        self.inner.episode_seeds().into_pyarray(py)
-    }
     #[getter]
     fn latent_dim(&self) -> usize {
         self.inner.action_dim()

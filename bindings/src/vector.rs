@@ -121,13 +121,51 @@ fn step_outputs<'py, E: BatchMember, D: ActionDecoder>(py: Python<'py>, b: &Batc
     )
 }
 
-/// The properties every batched environment class shares, defined once: the class holds the
-/// batch as `inner` (a [`BatchEnv`] of any member), its task's `spec` and the `stepping` clock.
-/// (A second `#[pymethods]` block per class: pyo3's `multiple-pymethods` feature.)
+/// The methods and properties every batched environment class shares, defined once: the class
+/// holds the batch as `inner` (a [`BatchEnv`] of any member), its task's `spec` and the
+/// `stepping` clock; `$what` names its actions in error messages. (A second `#[pymethods]`
+/// block per class: pyo3's `multiple-pymethods` feature.)
 macro_rules! batch_properties {
-    ($class:ty) => {
+    ($class:ty, $what:literal) => {
         #[pymethods]
         impl $class {
+            /// Reset the environments (all, or those where `mask` is true) with one seed each;
+            /// returns the observations, (B, obs_dim) float32.
+            #[pyo3(signature = (seeds, mask=None))]
+            fn reset<'py>(
+                &mut self,
+                py: Python<'py>,
+                seeds: Vec<u64>,
+                mask: Option<Vec<bool>>,
+            ) -> PyResult<Bound<'py, PyArray2<f32>>> {
+                $crate::vector::reset_batch(py, &mut self.inner, seeds, mask)
+            }
+
+            /// Step all B environments with a (B, action_dim) float64 array:
+            /// (obs, rewards, terminated, truncated, success, reset, final_obs).
+            /// `reset[i]`: environment i was reset during this call (next_step: its action was
+            /// ignored and obs is its reset observation; same_step: its episode ended, obs is the
+            /// reset observation and `final_obs[i]` the last one of the ended episode).
+            /// `final_obs` is None in next_step mode or when nothing ended.
+            fn step<'py>(
+                &mut self,
+                py: Python<'py>,
+                actions: PyReadonlyArray2<'py, f64>,
+            ) -> PyResult<$crate::vector::StepOut<'py>> {
+                $crate::vector::step_batch(py, &mut self.inner, $what, actions, &mut self.stepping)
+            }
+
+            /// Current observations, (B, obs_dim) float32.
+            fn observe<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
+                $crate::vector::obs_array(&self.inner, |i| self.inner.obs(i)).into_pyarray(py)
+            }
+
+            /// Seed of each environment's current episode (a single env's `reset(seed)`
+            /// reproduces it).
+            fn episode_seeds<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u64>> {
+                self.inner.episode_seeds().into_pyarray(py)
+            }
+
             /// Total seconds spent inside the Rust batched step since construction (or the last
             /// assignment, e.g. `core.stepping_seconds = 0.0`); the rest of a step's time is Python.
             #[getter]
@@ -172,7 +210,7 @@ macro_rules! batch_properties {
 }
 pub(crate) use batch_properties;
 
-batch_properties!(VecEnv);
+batch_properties!(VecEnv, "actions");
 
 #[pymethods]
 impl VecEnv {
@@ -196,44 +234,12 @@ impl VecEnv {
         Ok(Self { inner: BatchEnv::new(envs, threads, mode).map_err(to_py)?, spec, stepping: 0.0 })
     }
 
-    /// Reset the environments (all, or those where `mask` is true) with one seed each;
-    /// returns the observations, (B, obs_dim) float32.
-    #[pyo3(signature = (seeds, mask=None))]
-    fn reset<'py>(
-        &mut self,
-        py: Python<'py>,
-        seeds: Vec<u64>,
-        mask: Option<Vec<bool>>,
-    ) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        reset_batch(py, &mut self.inner, seeds, mask)
-    }
-
-    /// Step all B environments with a (B, action_dim) float64 array:
-    /// (obs, rewards, terminated, truncated, success, reset, final_obs).
-    /// `reset[i]`: environment i was reset during this call (next_step: its action was ignored
-    /// and obs is its reset observation; same_step: its episode ended, obs is the reset
-    /// observation and `final_obs[i]` the last one of the ended episode). `final_obs` is None
-    /// in next_step mode or when nothing ended.
-    fn step<'py>(&mut self, py: Python<'py>, actions: PyReadonlyArray2<'py, f64>) -> PyResult<StepOut<'py>> {
-        step_batch(py, &mut self.inner, "actions", actions, &mut self.stepping)
-    }
-
-    /// Current observations, (B, obs_dim) float32.
-    fn observe<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
-        obs_array(&self.inner, |i| self.inner.obs(i)).into_pyarray(py)
-    }
-
     /// The actions that hold every robot where it is, (B, action_dim) float64.
     fn current_targets<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let flat: Vec<f64> = self.inner.envs().flat_map(|e| e.current_target()).collect();
         let a = Array2::from_shape_vec((self.inner.num_envs(), equigym_envs::ACTION_DIM), flat)
             .map_err(|e| invalid_input(e.to_string()))?;
         Ok(a.into_pyarray(py))
-    }
-
-    /// Seed of each environment's current episode (a single `Env.reset(seed)` reproduces it).
-    fn episode_seeds<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u64>> {
-        self.inner.episode_seeds().into_pyarray(py)
     }
 
     /// The full state of environment `i` (as `Env.get_state`).

@@ -43,9 +43,9 @@ impl Runner {
         let t = self.time;
         let file = SummaryFile {
             env_steps: self.env_steps(),
-            grad_steps: self.grad_steps,
+            grad_steps: self.progress.grad_steps,
             params_hash: format!("{:016x}", params_hash(&self.sac)),
-            seconds: tenths(self.elapsed),
+            seconds: tenths(self.progress.elapsed),
             seconds_by_activity: TimeSplit { rollout: tenths(t.rollout), train: tenths(t.train), eval: tenths(t.eval) },
             eval_env_steps: self.eval_env_steps,
         };
@@ -66,7 +66,7 @@ impl Runner {
 
     pub(super) fn write_log(&self, dir: &Path) -> Result<()> {
         let mut s = String::from("env_steps,success_rate,mean_q,seconds\n");
-        for r in &self.rows {
+        for r in &self.progress.rows {
             s.push_str(&format!(
                 "{},{},{},{:.1}\n",
                 r.env_steps,
@@ -77,7 +77,7 @@ impl Runner {
         }
         write_atomic(&dir.join("log.csv"), s.as_bytes())?;
         let mut s = String::from("env_steps,alpha,entropy,edge_fraction,critic_loss,target_q,policy_q\n");
-        for (r, d) in self.rows.iter().zip(&self.diagnostics) {
+        for (r, d) in self.progress.rows.iter().zip(&self.progress.diagnostics) {
             let cells = [d.alpha, d.entropy, d.edge_fraction, d.critic_loss, d.target_q, d.policy_q].map(fmt_float);
             s.push_str(&format!("{},{}\n", r.env_steps, cells.join(",")));
         }

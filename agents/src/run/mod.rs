@@ -61,7 +61,7 @@ use crate::models::{Arch, Models, GROUP_ORDER};
 use crate::replay::{Batch, Replay, DEFAULT_CAPACITY};
 use crate::rng::{Rng, Stream};
 use crate::sac::{normals, Diagnostics, Sac, SacConfig};
-use state::{params_hash, Streams};
+use state::{params_hash, Progress};
 
 /// One line of `log.csv`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -91,6 +91,8 @@ pub struct RunSummary {
     pub params_actor: usize,
     pub params_critic: usize,
 }
+
+/// The diffusion policy's normalised chunks for `rows` observations and scaled latent actions
 /// (the noise-aliased step's decoder): the latent is scaled to the bound, clamped there (as the
 /// latent environments clamp), denoised and normalised.
 fn decode_normalized(policy: &DiffusionPolicy, obs: &[f32], w: &[f32], rows: usize, out: &mut Vec<f32>) {
@@ -122,15 +124,8 @@ struct Runner {
     envs: LatentBatchEnv,
     /// One environment per evaluation episode, made at the first evaluation.
     eval_envs: Option<LatentBatchEnv>,
-    replay: Replay,
-    streams: Streams,
-    num_timesteps: u64,
-    next_eval: u64,
-    grad_steps: u64,
-    elapsed: f64,
-    rows: Vec<LogRow>,
-    /// One per row of `rows`.
-    diagnostics: Vec<Diagnostics>,
+    /// Replay, streams, step counts, clock and log (checkpointed as they are).
+    progress: Progress,
     obs_dim: usize,
     /// Where the run's time went, over all its invocations (kept in `summary.json`, not in the
     /// checkpoint: wall time is not reproducible).
@@ -186,14 +181,7 @@ impl Runner {
             sac,
             envs,
             eval_envs: None,
-            replay: Replay::with_chunks(obs_dim, latent_dim, chunk_dim, DEFAULT_CAPACITY),
-            streams: Streams::new(cfg.seed),
-            num_timesteps: 0,
-            next_eval: 0,
-            grad_steps: 0,
-            elapsed: 0.0,
-            rows: Vec::new(),
-            diagnostics: Vec::new(),
+            progress: Progress::new(Replay::with_chunks(obs_dim, latent_dim, chunk_dim, DEFAULT_CAPACITY), cfg.seed),
             obs_dim,
             time: TimeSplit::default(),
             eval_env_steps: 0,
@@ -202,7 +190,7 @@ impl Runner {
     }
 
     fn env_steps(&self) -> u64 {
-        self.num_timesteps * self.policy.chunk_len as u64
+        self.progress.num_timesteps * self.policy.chunk_len as u64
     }
 
     /// One vector step with its transitions and gradient steps.
@@ -212,16 +200,16 @@ impl Runner {
         let obs: Vec<f32> = (0..n).flat_map(|i| member_obs(&self.envs, i)).collect();
         debug_assert_eq!(obs.len(), n * od);
         let bound = DEFAULT_LATENT_BOUND;
-        let scaled: Vec<f32> = if (self.num_timesteps as usize) < self.cfg.preset.warmup {
-            (0..n * ad).map(|_| (self.streams.warmup.normal().clamp(-bound, bound) / bound) as f32).collect()
+        let scaled: Vec<f32> = if (self.progress.num_timesteps as usize) < self.cfg.preset.warmup {
+            (0..n * ad).map(|_| (self.progress.streams.warmup.normal().clamp(-bound, bound) / bound) as f32).collect()
         } else {
             let mut eps = vec![0.0f32; n * ad];
-            normals(&mut self.streams.rollout, &mut eps);
+            normals(&mut self.progress.streams.rollout, &mut eps);
             self.sac.act(&obs, n, &eps)
         };
         let latents: Vec<f64> = scaled.iter().map(|a| *a as f64 * bound).collect();
         self.envs.step(&latents)?;
-        self.num_timesteps += n as u64;
+        self.progress.num_timesteps += n as u64;
         let (mut seeds, mut ended) = (vec![0; n], vec![false; n]);
         for i in 0..n {
             let r = self.envs.last_step(i).unwrap_or_default();
@@ -236,9 +224,9 @@ impl Runner {
                 _ => Vec::new(),
             };
             let (o, a) = (&obs[i * od..(i + 1) * od], &scaled[i * ad..(i + 1) * ad]);
-            self.replay.push_with_chunk(o, a, &chunk, r.reward as f32, &next, terminal);
+            self.progress.replay.push_with_chunk(o, a, &chunk, r.reward as f32, &next, terminal);
             if terminal || r.truncated {
-                seeds[i] = self.streams.env_seeds.next_u64();
+                seeds[i] = self.progress.streams.env_seeds.next_u64();
                 ended[i] = true;
             }
         }
@@ -247,23 +235,28 @@ impl Runner {
         }
         let train_started = Instant::now();
         self.time.rollout += (train_started - rollout_started).as_secs_f64();
-        if self.num_timesteps as usize > self.cfg.preset.warmup {
+        if self.progress.num_timesteps as usize > self.cfg.preset.warmup {
             for _ in 0..self.cfg.utd() * n {
-                self.replay.sample(self.cfg.preset.batch, &mut self.streams.replay, batch);
+                self.progress.replay.sample(self.cfg.preset.batch, &mut self.progress.streams.replay, batch);
                 let stats = if self.cfg.noise_aliased {
                     let policy = &self.policy;
                     let mut decode = |obs: &[f32], w: &[f32], rows: usize, out: &mut Vec<f32>| {
                         decode_normalized(policy, obs, w, rows, out)
                     };
-                    self.sac.train_step_aliased(batch, &mut decode, DEFAULT_LATENT_BOUND, &mut self.streams.train)
+                    self.sac.train_step_aliased(
+                        batch,
+                        &mut decode,
+                        DEFAULT_LATENT_BOUND,
+                        &mut self.progress.streams.train,
+                    )
                 } else {
-                    self.sac.train_step(batch, &mut self.streams.train)
+                    self.sac.train_step(batch, &mut self.progress.streams.train)
                 };
-                self.grad_steps += 1;
+                self.progress.grad_steps += 1;
                 if !(stats.critic_loss.is_finite() && stats.actor_loss.is_finite()) {
                     return Err(Error::Diverged(format!(
                         "non-finite loss at gradient step {} (critic {}, actor {})",
-                        self.grad_steps, stats.critic_loss, stats.actor_loss
+                        self.progress.grad_steps, stats.critic_loss, stats.actor_loss
                     )));
                 }
             }
@@ -275,7 +268,7 @@ impl Runner {
     /// Success rate of the stochastic actor over the evaluation episodes.
     fn evaluate(&mut self) -> Result<f64> {
         let episodes = self.cfg.eval_episodes;
-        let eval_index = self.rows.len() as u64;
+        let eval_index = self.progress.rows.len() as u64;
         let mut rngs: Vec<Rng> =
             (0..episodes as u64).map(|k| Rng::new(self.cfg.seed, Stream::Eval, (eval_index << 32) | k)).collect();
         let ad = self.sac.latent_dim();
@@ -298,11 +291,15 @@ impl Runner {
     }
 
     fn mean_q(&mut self) -> f64 {
-        if self.replay.is_empty() {
+        if self.progress.replay.is_empty() {
             return f64::NAN;
         }
         let mut b = Batch::<f32>::default();
-        self.replay.sample(MEAN_Q_SAMPLE.min(self.replay.len()), &mut self.streams.mean_q, &mut b);
+        self.progress.replay.sample(
+            MEAN_Q_SAMPLE.min(self.progress.replay.len()),
+            &mut self.progress.streams.mean_q,
+            &mut b,
+        );
         let q = self.sac.min_q(&b.obs, &b.act, b.rows);
         let s: f32 = q.iter().sum::<f32>() / q.len() as f32;
         s as f64
@@ -310,12 +307,12 @@ impl Runner {
 
     /// The learner's state at evaluation `rows.len()` (its own stream: see [`crate::rng`]).
     fn diagnose(&mut self) -> Diagnostics {
-        if self.replay.is_empty() {
+        if self.progress.replay.is_empty() {
             return Diagnostics::default();
         }
-        let mut rng = Rng::new(self.cfg.seed, Stream::Diagnostics, self.rows.len() as u64);
+        let mut rng = Rng::new(self.cfg.seed, Stream::Diagnostics, self.progress.rows.len() as u64);
         let mut b = Batch::<f32>::default();
-        self.replay.sample(MEAN_Q_SAMPLE.min(self.replay.len()), &mut rng, &mut b);
+        self.progress.replay.sample(MEAN_Q_SAMPLE.min(self.progress.replay.len()), &mut rng, &mut b);
         self.sac.diagnose(&b, &mut rng)
     }
 
@@ -358,23 +355,28 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
     std::fs::create_dir_all(&dir).map_err(|e| io_err(&dir, e))?;
     r.resume_or_start(&dir)?;
     r.write_run_json(&dir)?;
-    let base_elapsed = r.elapsed;
+    let base_elapsed = r.progress.elapsed;
     let steps_at_start = r.env_steps();
     let mut batch = Batch::default();
     let mut evals_now = 0;
     while r.env_steps() < cfg.steps as u64 {
         r.collect_and_train(&mut batch)?;
         let steps = r.env_steps();
-        if steps >= r.next_eval {
-            r.next_eval += cfg.eval_every as u64;
+        if steps >= r.progress.next_eval {
+            r.progress.next_eval += cfg.eval_every as u64;
             let eval_started = Instant::now();
             let success_rate = r.evaluate()?;
             r.time.eval += eval_started.elapsed().as_secs_f64();
             let mean_q = r.mean_q();
             let diagnostics = r.diagnose();
-            r.diagnostics.push(diagnostics);
-            r.elapsed = base_elapsed + started.elapsed().as_secs_f64();
-            r.rows.push(LogRow { env_steps: steps, success_rate, mean_q, seconds: (r.elapsed * 10.0).round() / 10.0 });
+            r.progress.diagnostics.push(diagnostics);
+            r.progress.elapsed = base_elapsed + started.elapsed().as_secs_f64();
+            r.progress.rows.push(LogRow {
+                env_steps: steps,
+                success_rate,
+                mean_q,
+                seconds: (r.progress.elapsed * 10.0).round() / 10.0,
+            });
             r.write_log(&dir)?;
             r.save(&dir)?;
             if cfg.progress {
@@ -383,7 +385,7 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
                     cfg.task,
                     cfg.method.name(),
                     cfg.seed,
-                    r.elapsed
+                    r.progress.elapsed
                 );
             }
             evals_now += 1;
@@ -394,16 +396,16 @@ pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
     }
     // An invocation that found the run finished leaves its files (and its clock) as they were.
     if r.env_steps() > steps_at_start && cfg.stop_after_evals != Some(evals_now) {
-        r.elapsed = base_elapsed + started.elapsed().as_secs_f64();
+        r.progress.elapsed = base_elapsed + started.elapsed().as_secs_f64();
         r.save(&dir)?;
     }
     let summary = RunSummary {
         run_dir: dir.clone(),
-        rows: r.rows.clone(),
+        rows: r.progress.rows.clone(),
         params_hash: params_hash(&r.sac),
         env_steps: r.env_steps(),
-        grad_steps: r.grad_steps,
-        seconds: r.elapsed,
+        grad_steps: r.progress.grad_steps,
+        seconds: r.progress.elapsed,
         time: r.time,
         eval_env_steps: r.eval_env_steps,
         fields: r.fields,

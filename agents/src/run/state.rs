@@ -5,19 +5,17 @@
 use std::path::Path;
 
 use equigym_envs::EnvError;
-use equigym_nn::Adam;
 use serde::{Deserialize, Serialize};
 
 use super::files::write_atomic;
 use super::{LogRow, Runner};
 use crate::error::{io_err, Error, Result};
-use crate::net::Net;
 use crate::replay::Replay;
 use crate::rng::{Rng, Stream};
-use crate::sac::{Diagnostics, Sac};
+use crate::sac::{Diagnostics, Sac, SacState};
 
 /// Checkpoint format tag.
-pub const CHECKPOINT_FORMAT: &str = "equigym-agents-ckpt-3";
+pub const CHECKPOINT_FORMAT: &str = "equigym-agents-ckpt-4";
 const CHECKPOINT_FILE: &str = "checkpoint.bin";
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -50,44 +48,45 @@ struct CheckpointHeader {
     format: String,
 }
 
+/// The run's progress besides the learner and the environments: replay, random streams, step
+/// counts, clock and log.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub(super) struct Progress {
+    pub(super) replay: Replay,
+    pub(super) streams: Streams,
+    pub(super) num_timesteps: u64,
+    pub(super) next_eval: u64,
+    pub(super) grad_steps: u64,
+    pub(super) elapsed: f64,
+    pub(super) rows: Vec<LogRow>,
+    /// One per row of `rows`.
+    pub(super) diagnostics: Vec<Diagnostics>,
+}
+
+impl Progress {
+    /// A run that has not started: an empty `replay`, the streams of `seed`.
+    pub(super) fn new(replay: Replay, seed: u64) -> Self {
+        Self {
+            replay,
+            streams: Streams::new(seed),
+            num_timesteps: 0,
+            next_eval: 0,
+            grad_steps: 0,
+            elapsed: 0.0,
+            rows: Vec::new(),
+            diagnostics: Vec::new(),
+        }
+    }
+}
+
 #[derive(Serialize, Deserialize)]
 struct Checkpoint {
     format: String,
     fingerprint: String,
-    actor: Vec<f32>,
-    critics: [Vec<f32>; 2],
-    targets: [Vec<f32>; 2],
-    log_alpha: f32,
-    opt_actor: Adam<f32>,
-    opt_critics: [Adam<f32>; 2],
-    opt_alpha: Adam<f32>,
-    replay: Replay,
-    streams: Streams,
+    learner: SacState,
+    /// Each environment's full state (`Env::get_state`).
     envs: Vec<Vec<u8>>,
-    num_timesteps: u64,
-    next_eval: u64,
-    grad_steps: u64,
-    elapsed: f64,
-    rows: Vec<LogRow>,
-    diagnostics: Vec<Diagnostics>,
-    /// The noise-aliased agents' action critics (None for the others).
-    action_critics: Option<ActionCriticState>,
-}
-
-#[derive(Serialize, Deserialize)]
-struct ActionCriticState {
-    critics: [Vec<f32>; 2],
-    targets: [Vec<f32>; 2],
-    opt: [Adam<f32>; 2],
-}
-
-/// The diffusion policy's normalised chunks for `rows` observations and scaled latent actions
-/// Checkpointed parameters into twin nets (sizes already checked), re-expanded.
-fn load_twins(nets: &mut [Net<f32>; 2], params: [Vec<f32>; 2]) {
-    for (n, p) in nets.iter_mut().zip(params) {
-        n.params = p;
-        n.expand();
-    }
+    progress: Progress,
 }
 
 /// FNV-1a over f32 bits.
@@ -122,7 +121,8 @@ impl Runner {
     pub(super) fn resume_or_start(&mut self, dir: &Path) -> Result<()> {
         let ckpt_path = dir.join(CHECKPOINT_FILE);
         if !ckpt_path.exists() {
-            let seeds: Vec<u64> = (0..self.envs.num_envs()).map(|_| self.streams.env_seeds.next_u64()).collect();
+            let seeds: Vec<u64> =
+                (0..self.envs.num_envs()).map(|_| self.progress.streams.env_seeds.next_u64()).collect();
             self.envs.reset(&seeds)?;
             // A log from an older run without a checkpoint would mix two runs.
             let _ = std::fs::remove_file(dir.join("log.csv"));
@@ -162,27 +162,9 @@ impl Runner {
         Ok(Checkpoint {
             format: CHECKPOINT_FORMAT.into(),
             fingerprint: self.cfg.fingerprint(),
-            actor: self.sac.actor.params.clone(),
-            critics: [self.sac.critics[0].params.clone(), self.sac.critics[1].params.clone()],
-            targets: [self.sac.targets[0].params.clone(), self.sac.targets[1].params.clone()],
-            log_alpha: self.sac.log_alpha,
-            opt_actor: self.sac.opt_actor.clone(),
-            opt_critics: self.sac.opt_critics.clone(),
-            opt_alpha: self.sac.opt_alpha.clone(),
-            replay: self.replay.clone(),
-            streams: self.streams.clone(),
+            learner: self.sac.state(),
             envs,
-            num_timesteps: self.num_timesteps,
-            next_eval: self.next_eval,
-            grad_steps: self.grad_steps,
-            elapsed: self.elapsed,
-            rows: self.rows.clone(),
-            diagnostics: self.diagnostics.clone(),
-            action_critics: self.sac.aliased.as_ref().map(|na| ActionCriticState {
-                critics: [na.critics[0].params.clone(), na.critics[1].params.clone()],
-                targets: [na.targets[0].params.clone(), na.targets[1].params.clone()],
-                opt: na.opt.clone(),
-            }),
+            progress: self.progress.clone(),
         })
     }
 
@@ -195,57 +177,17 @@ impl Runner {
                 c.fingerprint
             )));
         }
-        let fit = |name: &str, got: usize, want: usize| {
-            if got == want {
-                Ok(())
-            } else {
-                Err(bad(format!("{name} has {got} parameters, expected {want}")))
-            }
-        };
-        let fit_twins = |name: &str, saved: &[Vec<f32>; 2], nets: &[Net<f32>; 2]| {
-            saved.iter().zip(nets).try_for_each(|(s, n)| fit(name, s.len(), n.num_params()))
-        };
-        fit("actor", c.actor.len(), self.sac.actor.num_params())?;
-        fit_twins("critic", &c.critics, &self.sac.critics)?;
-        fit_twins("target critic", &c.targets, &self.sac.targets)?;
-        match (&self.sac.aliased, &c.action_critics) {
-            (Some(na), Some(s)) => {
-                fit_twins("action critic", &s.critics, &na.critics)?;
-                fit_twins("action target", &s.targets, &na.targets)?;
-            }
-            (None, None) => {}
-            _ => return Err(bad("action critics saved for a run without noise aliasing, or missing".into())),
-        }
         let n = self.envs.num_envs();
         if c.envs.len() != n {
             return Err(bad(format!("{} environments saved, {n} needed", c.envs.len())));
         }
+        self.sac.set_state(c.learner).map_err(bad)?;
         // Any start will do: every environment's state is replaced by the saved one.
         self.envs.reset(&vec![0; n])?;
         for (i, s) in c.envs.iter().enumerate() {
             self.envs.edit(i, |e| e.env_mut().set_state(s)).unwrap_or(Ok(()))?;
         }
-        self.sac.actor.params = c.actor;
-        self.sac.actor.expand();
-        load_twins(&mut self.sac.critics, c.critics);
-        load_twins(&mut self.sac.targets, c.targets);
-        if let (Some(na), Some(s)) = (self.sac.aliased.as_mut(), c.action_critics) {
-            load_twins(&mut na.critics, s.critics);
-            load_twins(&mut na.targets, s.targets);
-            na.opt = s.opt;
-        }
-        self.sac.log_alpha = c.log_alpha;
-        self.sac.opt_actor = c.opt_actor;
-        self.sac.opt_critics = c.opt_critics;
-        self.sac.opt_alpha = c.opt_alpha;
-        self.replay = c.replay;
-        self.streams = c.streams;
-        self.num_timesteps = c.num_timesteps;
-        self.next_eval = c.next_eval;
-        self.grad_steps = c.grad_steps;
-        self.elapsed = c.elapsed;
-        self.rows = c.rows;
-        self.diagnostics = c.diagnostics;
+        self.progress = c.progress;
         Ok(())
     }
 }
