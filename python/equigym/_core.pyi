@@ -17,6 +17,7 @@ __all__ = [
     "VecEnv",
     "measure_symmetry_breaking",
     "steer_run",
+    "steer_preset",
     "steer_gradcase",
     "evaluate_base",
     "wilson",
@@ -272,7 +273,7 @@ class LatentVecEnv:
     ) -> LatentVecEnv: ...
     def reset(self, seeds: list[int], mask: list[bool] | None = None) -> npt.NDArray[np.float32]: ...
     def step(
-        self, latents: npt.NDArray[np.float64]
+        self, actions: npt.NDArray[np.float64]
     ) -> tuple[
         npt.NDArray[np.float32],
         npt.NDArray[np.float64],
