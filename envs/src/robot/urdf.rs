@@ -100,6 +100,60 @@ fn inertia(link: &urdf_rs::Link) -> LinkInertia {
     }
 }
 
+/// A finger joint (the hand is the link with two of them).
+fn is_prismatic(j: &&&urdf_rs::Joint) -> bool {
+    matches!(j.joint_type, urdf_rs::JointType::Prismatic)
+}
+
+/// Path from the root to the hand, found depth first (the arm is serial, so it is unique).
+fn path_to_hand<'a>(
+    link: &'a str,
+    children: &HashMap<&'a str, Vec<&'a urdf_rs::Joint>>,
+    is_hand: &dyn Fn(&str) -> bool,
+    depth: usize,
+) -> Option<Vec<&'a urdf_rs::Joint>> {
+    if is_hand(link) {
+        return Some(Vec::new());
+    }
+    if depth > 64 {
+        return None;
+    }
+    for j in children.get(link).into_iter().flatten() {
+        if matches!(j.joint_type, urdf_rs::JointType::Prismatic) {
+            continue;
+        }
+        if let Some(mut rest) = path_to_hand(j.child.link.as_str(), children, is_hand, depth + 1) {
+            rest.insert(0, j);
+            return Some(rest);
+        }
+    }
+    None
+}
+
+/// The hand's two prismatic finger joints, with their links.
+fn finger_joints(hand_children: &[&urdf_rs::Joint], links: &HashMap<&str, &urdf_rs::Link>) -> Result<[FingerJoint; 2]> {
+    let mut fingers = Vec::new();
+    for j in hand_children.iter().filter(is_prismatic) {
+        let link = links[j.child.link.as_str()];
+        if j.limit.lower.is_nan() || j.limit.upper.is_nan() || j.limit.lower > j.limit.upper {
+            return Err(err(format!("finger joint '{}': limits are not an interval", j.name)));
+        }
+        fingers.push(FingerJoint {
+            name: j.name.clone(),
+            origin: finite_pose(&j.origin, &format!("joint '{}'", j.name))?,
+            axis: axis(j)?,
+            lower: j.limit.lower,
+            upper: j.limit.upper,
+            max_effort: if j.limit.effort > 0.0 { j.limit.effort } else { 70.0 },
+            max_velocity: if j.limit.velocity > 0.0 { j.limit.velocity } else { f64::INFINITY },
+            link: link.name.clone(),
+            shapes: shapes(link)?,
+            inertia: inertia(link),
+        });
+    }
+    fingers.try_into().map_err(|_| err("the hand needs exactly two fingers"))
+}
+
 /// Parse a URDF document held in a string.
 pub fn parse_urdf(text: &str) -> Result<RobotModel> {
     let robot = urdf_rs::read_from_string(text).map_err(|e| err(format!("not a valid URDF document: {e}")))?;
@@ -121,34 +175,7 @@ pub fn parse_urdf(text: &str) -> Result<RobotModel> {
         many => return Err(err(format!("the URDF has several root links: {many:?}"))),
     };
 
-    fn is_prismatic(j: &&&urdf_rs::Joint) -> bool {
-        matches!(j.joint_type, urdf_rs::JointType::Prismatic)
-    }
     let is_hand = |name: &str| children.get(name).map_or(0, |c| c.iter().filter(is_prismatic).count()) == 2;
-    // Path from the root to the hand, found depth first (the arm is serial, so it is unique).
-    fn path_to_hand<'a>(
-        link: &'a str,
-        children: &HashMap<&'a str, Vec<&'a urdf_rs::Joint>>,
-        is_hand: &dyn Fn(&str) -> bool,
-        depth: usize,
-    ) -> Option<Vec<&'a urdf_rs::Joint>> {
-        if is_hand(link) {
-            return Some(Vec::new());
-        }
-        if depth > 64 {
-            return None;
-        }
-        for j in children.get(link).into_iter().flatten() {
-            if matches!(j.joint_type, urdf_rs::JointType::Prismatic) {
-                continue;
-            }
-            if let Some(mut rest) = path_to_hand(j.child.link.as_str(), children, is_hand, depth + 1) {
-                rest.insert(0, j);
-                return Some(rest);
-            }
-        }
-        None
-    }
     let path = path_to_hand(root, &children, &is_hand, 0)
         .ok_or_else(|| err("no hand found: expected one link with exactly two prismatic finger joints"))?;
 
@@ -213,26 +240,7 @@ pub fn parse_urdf(text: &str) -> Result<RobotModel> {
     let hand = links[hand_name];
     let hand_children = &children[hand_name];
 
-    let mut fingers = Vec::new();
-    for j in hand_children.iter().filter(is_prismatic) {
-        let link = links[j.child.link.as_str()];
-        if j.limit.lower.is_nan() || j.limit.upper.is_nan() || j.limit.lower > j.limit.upper {
-            return Err(err(format!("finger joint '{}': limits are not an interval", j.name)));
-        }
-        fingers.push(FingerJoint {
-            name: j.name.clone(),
-            origin: finite_pose(&j.origin, &format!("joint '{}'", j.name))?,
-            axis: axis(j)?,
-            lower: j.limit.lower,
-            upper: j.limit.upper,
-            max_effort: if j.limit.effort > 0.0 { j.limit.effort } else { 70.0 },
-            max_velocity: if j.limit.velocity > 0.0 { j.limit.velocity } else { f64::INFINITY },
-            link: link.name.clone(),
-            shapes: shapes(link)?,
-            inertia: inertia(link),
-        });
-    }
-    let fingers: [FingerJoint; 2] = fingers.try_into().map_err(|_| err("the hand needs exactly two fingers"))?;
+    let fingers = finger_joints(hand_children, &links)?;
     if fingers.iter().any(|f| f.inertia.mass <= 0.0) || inertia(hand).mass <= 0.0 {
         return Err(err("the hand and both fingers need a positive <inertial> mass"));
     }
