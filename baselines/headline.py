@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> None:
         "--recipe",
         default=None,
         choices=sorted(RECIPES),
-        help="run options (equigym.steer.RECIPES; default na-tos-h40 for the Rust agents, dsrl for SB3)",
+        help="run options (equigym.steer.RECIPES; default na-tos-h20 for the Rust agents, dsrl for SB3)",
     )
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
     p.add_argument("--steps", type=int, default=16_000, help="environment steps per run")
@@ -64,7 +64,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--out", default=None, help="default runs/headline (Rust agents) or runs/headline-sb3")
     p.add_argument("--agents", choices=["rust", "sb3"], default="rust", help="Rust agents or the SB3 + escnn baselines")
     a = p.parse_args(argv)
-    a.recipe = a.recipe or ("na-tos-h40" if a.agents == "rust" else "dsrl")
+    a.recipe = a.recipe or ("na-tos-h20" if a.agents == "rust" else "dsrl")
     if a.agents == "sb3" and RECIPES[a.recipe]:
         p.error(f"recipe {a.recipe} needs the Rust agents; use --recipe dsrl with --agents sb3")
     a.out = a.out or ("runs/headline" if a.agents == "rust" else "runs/headline-sb3")

@@ -168,10 +168,14 @@ def test_run_writes_the_sb3_log_layout_and_is_thread_independent_and_resumable(t
     # The learner's state at each evaluation: same columns as the SB3 runs', one row per
     # evaluation, the same for any thread count (drawn from its own stream).
     train = read(run_dir / "train.csv")
-    assert list(train[0]) == ["env_steps", "alpha", "entropy", "edge_fraction", "critic_loss", "target_q", "policy_q"]
+    columns = ["env_steps", "alpha", "entropy", "edge_fraction", "critic_loss", "target_q", "policy_q", "prior_kl"]
+    assert list(train[0]) == columns
     assert [r["env_steps"] for r in train] == [r["env_steps"] for r in rows]
     assert all(math.isclose(float(r["alpha"]), 0.2, rel_tol=1e-6) for r in train)  # no gradient step yet
     assert all(math.isfinite(float(r["entropy"])) and 0 <= float(r["edge_fraction"]) <= 1 for r in train)
+    # the untrained actor is narrower than the EDP's noise and off-centre: a KL of 10-20 nats
+    # over the 40-d latent (a KL is never below zero)
+    assert all(5 < float(r["prior_kl"]) < 40 for r in train)
     assert train == read(tmp_path / "b" / "lift" / "equi" / "seed0" / "train.csv")
     table = steer.diagnose([str(run_dir)])
     assert "policy entropy" in table and f"| 128 | {float(rows[-1]['success_rate']):.2f} |" in table
@@ -190,6 +194,14 @@ def test_bad_arguments_raise_value_errors(tmp_path):
         _core.steer_run("dsrl", "lift", 0, 16, str(tmp_path), preset="gpu")
     with pytest.raises(ValueError, match="controller"):
         _core.steer_run("dsrl", "lift", 0, 16, str(tmp_path), controller="torque")
+    # a target entropy the 40-d actor cannot reach (at most 27.3 nats) would grow alpha without end
+    with pytest.raises(ValueError, match="out of reach"):
+        _core.steer_run("dsrl", "lift", 0, 16, str(tmp_path), target_entropy=27.5)
+    with pytest.raises(ValueError, match="replaces the target entropy"):
+        _core.steer_run("dsrl", "lift", 0, 16, str(tmp_path), target_entropy=5.0, prior_kl=4.0)
+    with pytest.raises(ValueError, match="positive"):
+        _core.steer_run("dsrl", "lift", 0, 16, str(tmp_path), prior_kl=0.0)
+    assert not any(tmp_path.iterdir())  # refused before anything is written
 
 
 def test_main_job_steers_with_the_rust_agents(tmp_path, capsys):
@@ -205,12 +217,12 @@ def test_main_job_steers_with_the_rust_agents(tmp_path, capsys):
         run_dir = tmp_path / "lift" / "dsrl" / f"seed{seed}"
         meta = json.loads((run_dir / "run.json").read_text())
         assert meta["agent"] == "rust" and meta["eval_episodes"] == 2
-        assert {k: meta[k] for k in steer.RECIPES["na-tos-h40"]} == steer.RECIPES["na-tos-h40"]
+        assert {k: meta[k] for k in steer.RECIPES["na-tos-h20"]} == steer.RECIPES["na-tos-h20"]
         assert [int(r["env_steps"]) for r in read(run_dir / "log.csv")][-2:] == [64, 128]
     lines = printed.splitlines()
     assert any(line.startswith("| base policy, N(0, I) | 2 |") for line in lines)
     assert any(line.startswith("| narrow-noise base, N(0, 0.5^2 I) | 2 |") for line in lines)
-    final = next(line for line in lines if "target_entropy=40.0), final" in line)
+    final = next(line for line in lines if "target_entropy=20.0), final" in line)
     finals = [read(tmp_path / "lift" / "dsrl" / f"seed{s}" / "log.csv")[-3:] for s in (0, 1)]
     wins = sum(round(float(r["success_rate"]) * 2) for rows in finals for r in rows)
     assert f"{wins}/12 = " in final
@@ -297,5 +309,5 @@ def test_main_job_refuses_a_rust_only_recipe_for_the_sb3_agents(tmp_path):
     from baselines import headline
 
     with pytest.raises(SystemExit):
-        headline.main(["--agents", "sb3", "--recipe", "na-tos-h40", "--out", str(tmp_path)])
+        headline.main(["--agents", "sb3", "--recipe", "na-tos-h20", "--out", str(tmp_path)])
     assert not any(tmp_path.iterdir()), "nothing ran"

@@ -119,8 +119,11 @@ fn grad_steps_per_s(method: Method, arch: Arch, steps: usize) -> (f64, usize) {
     let models = Models::<f32>::new(method, &sym, arch, 0).unwrap();
     let fields = models.fields;
     let (od, ad) = (sym.observation.dim(), sym.chunk.dim());
-    let mut sac =
-        Sac::new(models, od, SacConfig { lr: 3e-4, gamma: 0.99, tau: 0.005, target_entropy: 0.0, ent_init: 0.2 });
+    let mut sac = Sac::new(
+        models,
+        od,
+        SacConfig { lr: 3e-4, gamma: 0.99, tau: 0.005, target_entropy: 0.0, ent_init: 0.2, prior: None },
+    );
     let mut replay = Replay::new(od, ad, 10_000);
     let mut rng = Rng::new(0, Stream::Eval, 0);
     for _ in 0..2048 {

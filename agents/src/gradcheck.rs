@@ -170,7 +170,7 @@ pub fn grad_case(method: Method, task: &str, seed: u64, rows: usize) -> Result<G
     let alpha = libm::exp(log_alpha);
     let mut s2 = ActorSample::default();
     let (mut buf, mut y) = (Buffers::default(), Vec::new());
-    soft_target(&m.head, &m.actor, &m.critics, &batch, &eps2, alpha, gamma, &mut s2, &mut buf, &mut y);
+    soft_target(&m.head, &m.actor, &m.critics, &batch, &eps2, alpha, gamma, None, &mut s2, &mut buf, &mut y);
     let mut x = Vec::new();
     concat_rows(&obs, od, &act, ad, rows, &mut x);
     let mut critic_grads = [vec![0.0; m.critics[0].num_params()], vec![0.0; m.critics[1].num_params()]];
@@ -181,7 +181,7 @@ pub fn grad_case(method: Method, task: &str, seed: u64, rows: usize) -> Result<G
     let mut s1 = ActorSample::default();
     m.head.sample(&m.actor, &obs, rows, &eps1, &mut s1);
     let mut actor_grad = vec![0.0; m.actor.num_params()];
-    let actor_loss = actor_loss_grad(&m.head, &m.actor, &m.critics, &obs, &s1, alpha, &mut actor_grad, &mut buf);
+    let actor_loss = actor_loss_grad(&m.head, &m.actor, &m.critics, &obs, &s1, alpha, None, &mut actor_grad, &mut buf);
     let (alpha_loss, alpha_grad) = alpha_loss_grad(log_alpha, &s1.logp, target_entropy);
     let radial = match &m.head.squash {
         Squash::Tanh => None,

@@ -43,6 +43,62 @@ pub struct SacConfig {
     pub tau: f64,
     pub target_entropy: f64,
     pub ent_init: f64,
+    /// Regularise towards the diffusion policy's own noise instead of towards high entropy
+    /// (`None`: SAC's entropy term with `target_entropy`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub prior: Option<NoisePrior>,
+}
+
+impl SacConfig {
+    /// What the entropy coefficient's loss compares `log pi` (or `log pi - log p`) against.
+    fn alpha_target(&self) -> f64 {
+        self.prior.map_or(self.target_entropy, |p| -p.target_kl)
+    }
+}
+
+/// KL regularisation towards the noise the diffusion policy was trained on, `N(0, I)` over the
+/// latent (restricted to the latent box), in place of SAC's entropy bonus: every `log pi(a|s)` of
+/// the soft targets, the actor loss and the coefficient's loss becomes `log pi(a|s) - log p(a)`,
+/// a one-sample estimate of `KL(pi(.|s) || p)`, and `alpha` is tuned to hold its mean at
+/// `target_kl`. The optimal actor is then `pi(w|s) ~ p(w) exp(Q(s, w) / alpha)`: a reweighting of
+/// the base policy's own noise by the critic, rather than a distribution that only has to be
+/// wide. An entropy target constrains the width but not the centre (entropy does not change when
+/// the mean moves), so SAC's actor may drift wherever the critic's errors point, into noise the
+/// EDP was never trained on; the prior charges for both (docs/steering.md).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NoisePrior {
+    /// Half-width of the latent box: the environment receives `bound * a`.
+    pub bound: f64,
+    /// KL budget in nats.
+    pub target_kl: f64,
+}
+
+impl NoisePrior {
+    /// Each row's `log pi(a|s)` in `s` becomes `log pi(a|s) - log p(a)`, with `p` the density of
+    /// `a = w / bound`, `w ~ N(0, I)` restricted to the box:
+    /// `-log p(a) = bound^2 |a|^2 / 2 + const` ([`crate::models::Squash::prior_log_norm`]).
+    pub fn apply<T: Real>(&self, head: &PolicyHead, s: &mut ActorSample<T>) {
+        let d = head.dim;
+        let c = T::from_f64(head.squash.prior_log_norm(d, self.bound));
+        let k = T::from_f64(0.5 * self.bound * self.bound);
+        for (lp, a) in s.logp.iter_mut().zip(s.a.chunks_exact(d.max(1))) {
+            let mut sq = T::ZERO;
+            for v in a {
+                sq += *v * *v;
+            }
+            *lp += k * sq + c;
+        }
+    }
+
+    /// `d(-log p)/da = bound^2 a`, scaled by `g` per row, added into `ga`.
+    fn add_grad<T: Real>(&self, a: &[T], g: &[T], d: usize, ga: &mut [T]) {
+        let k = T::from_f64(self.bound * self.bound);
+        for (r, gr) in g.iter().enumerate() {
+            for i in r * d..(r + 1) * d {
+                ga[i] += *gr * k * a[i];
+            }
+        }
+    }
 }
 
 /// A squashed Gaussian sample of the actor with what its backward pass needs.
@@ -158,7 +214,8 @@ impl PolicyHead {
 }
 
 /// The soft target `y = r + gamma (1 - terminated) (min_k Q'_k(s', a') - alpha log pi(a'|s'))`,
-/// with `a'` the actor's sample for noise `eps` (kept in `s2`), into `y`.
+/// with `a'` the actor's sample for noise `eps` (kept in `s2`; with a `prior`, `log pi - log p`),
+/// into `y`.
 #[allow(clippy::too_many_arguments)]
 pub fn soft_target<T: Real>(
     head: &PolicyHead,
@@ -168,6 +225,7 @@ pub fn soft_target<T: Real>(
     eps: &[T],
     alpha: T,
     gamma: T,
+    prior: Option<&NoisePrior>,
     s2: &mut ActorSample<T>,
     buf: &mut Buffers<T>,
     y: &mut Vec<T>,
@@ -175,6 +233,9 @@ pub fn soft_target<T: Real>(
     let (b, ad) = (batch.rows, head.dim);
     let od = batch.obs.len() / b.max(1);
     head.sample(actor, &batch.next_obs, b, eps, s2);
+    if let Some(p) = prior {
+        p.apply(head, s2);
+    }
     min_over(targets, &batch.next_obs, od, &s2.a, ad, b, &mut buf.x, &mut buf.tapes[0], &mut buf.next_q);
     soft_values(batch, gamma, &buf.next_q, alpha, &s2.logp, y);
 }
@@ -238,7 +299,8 @@ pub fn critic_loss_grad<T: Real>(critic: &Net<T>, x: &[T], y: &[T], grads: &mut 
 }
 
 /// The actor loss `mean_r(alpha log pi(a_r|s_r) - min_k Q_k(s_r, a_r))` for the sample `s1`
-/// (taken at `obs`); its gradient with respect to the actor's parameters is added into `grads`.
+/// (taken at `obs`; with a `prior`, `s1.logp` already holds `log pi - log p`); its gradient with
+/// respect to the actor's parameters is added into `grads`.
 #[allow(clippy::too_many_arguments)]
 pub fn actor_loss_grad<T: Real>(
     head: &PolicyHead,
@@ -247,6 +309,7 @@ pub fn actor_loss_grad<T: Real>(
     obs: &[T],
     s1: &ActorSample<T>,
     alpha: T,
+    prior: Option<&NoisePrior>,
     grads: &mut [T],
     buf: &mut Buffers<T>,
 ) -> f64 {
@@ -283,6 +346,9 @@ pub fn actor_loss_grad<T: Real>(
     }
     glogp.clear();
     glogp.resize(b, alpha * inv_b);
+    if let Some(p) = prior {
+        p.add_grad(&s1.a, glogp, ad, ga);
+    }
     head.sample_backward(actor, s1, ga, glogp, grads, dout, gu, ws);
     loss
 }
@@ -470,6 +536,11 @@ pub struct Diagnostics {
     pub target_q: f64,
     /// Mean `min_k Q_k(s, a')` at the actor's own actions `a' ~ pi(.|s)`.
     pub policy_q: f64,
+    /// Estimated `KL(pi(.|s) || p)` to the diffusion policy's noise `N(0, I)` in the box
+    /// ([`NoisePrior`]), whatever the regulariser: how far the actor has moved off the noise the
+    /// EDP was trained on (its centre as well as its width).
+    #[serde(default)]
+    pub prior_kl: f64,
 }
 
 /// Concatenate obs (rows x od) and actions (rows x ad) row by row.
@@ -572,12 +643,18 @@ impl<T: Real> Sac<T> {
         sc.eps.resize(b * ad, T::ZERO);
         normals(rng, &mut sc.eps);
         self.head.sample(&self.actor, &batch.obs, b, &sc.eps, &mut sc.s1);
+        if let Some(p) = &self.config.prior {
+            p.apply(&self.head, &mut sc.s1);
+        }
         // 2. entropy coefficient
         let (alpha, alpha_loss) =
-            step_alpha(&mut self.log_alpha, &mut self.opt_alpha, &sc.s1.logp, self.config.target_entropy);
+            step_alpha(&mut self.log_alpha, &mut self.opt_alpha, &sc.s1.logp, self.config.alpha_target());
         // 3. target through the action critics' targets at the decoded next chunk
         normals(rng, &mut sc.eps);
         self.head.sample(&self.actor, &batch.next_obs, b, &sc.eps, &mut sc.s2);
+        if let Some(p) = &self.config.prior {
+            p.apply(&self.head, &mut sc.s2);
+        }
         decode(&batch.next_obs, &sc.s2.a, b, &mut sc.chunk);
         min_over(&na.targets, &batch.next_obs, od, &sc.chunk, ad, b, &mut sc.x, &mut sc.tape, &mut sc.q);
         soft_values(batch, T::from_f64(self.config.gamma), &sc.q, alpha, &sc.s2.logp, &mut sc.y);
@@ -603,6 +680,7 @@ impl<T: Real> Sac<T> {
             &batch.obs,
             &sc.s1,
             alpha,
+            self.config.prior.as_ref(),
             &mut sc.grads,
             &mut sc.buf,
         );
@@ -617,6 +695,11 @@ impl<T: Real> Sac<T> {
 
     pub fn latent_dim(&self) -> usize {
         self.head.dim
+    }
+
+    /// The most entropy the actor's family can have ([`crate::models::Squash::max_entropy`]).
+    pub fn max_entropy(&self) -> f64 {
+        self.head.squash.max_entropy(self.head.dim)
     }
 
     /// Actions of the stochastic actor for `rows` observations with noise `eps` (in [-1, 1]).
@@ -634,8 +717,9 @@ impl<T: Real> Sac<T> {
         q
     }
 
-    /// The learner's state on `batch` (no parameter changes); `rng` draws the actor's noise.
-    pub fn diagnose(&mut self, batch: &Batch<T>, rng: &mut Rng) -> Diagnostics {
+    /// The learner's state on `batch` (no parameter changes); `rng` draws the actor's noise;
+    /// `bound` is the latent box's half-width (for the KL to the noise prior).
+    pub fn diagnose(&mut self, batch: &Batch<T>, rng: &mut Rng, bound: f64) -> Diagnostics {
         let (od, ad, b) = (self.obs_dim, self.head.dim, batch.rows);
         if b == 0 {
             return Diagnostics::default();
@@ -645,6 +729,11 @@ impl<T: Real> Sac<T> {
         normals(rng, &mut eps);
         let mut s1 = ActorSample::default();
         self.head.sample(&self.actor, &batch.obs, b, &eps, &mut s1);
+        let mean = |v: &mut dyn Iterator<Item = f64>| v.sum::<f64>() / b as f64;
+        let entropy = -mean(&mut s1.logp.iter().map(|l| l.to_f64()));
+        let mut with_prior = s1.clone();
+        NoisePrior { bound, target_kl: 0.0 }.apply(&self.head, &mut with_prior);
+        let prior_kl = mean(&mut with_prior.logp.iter().map(|l| l.to_f64()));
         normals(rng, &mut eps);
         let (mut s2, mut buf, mut y) = (ActorSample::default(), Buffers::default(), Vec::new());
         soft_target(
@@ -655,11 +744,11 @@ impl<T: Real> Sac<T> {
             &eps,
             alpha,
             T::from_f64(self.config.gamma),
+            self.config.prior.as_ref(),
             &mut s2,
             &mut buf,
             &mut y,
         );
-        let mean = |v: &mut dyn Iterator<Item = f64>| v.sum::<f64>() / b as f64;
         let policy_q = mean(&mut self.min_q(&batch.obs, &s1.a, b).iter().map(|q| q.to_f64()));
         let mut x = Vec::new();
         concat_rows(&batch.obs, od, &batch.act, ad, b, &mut x);
@@ -668,7 +757,8 @@ impl<T: Real> Sac<T> {
         let edge: usize = s1.a.chunks(ad).map(|a| self.head.squash.at_edge(a, EDGE)).sum();
         Diagnostics {
             alpha: alpha.to_f64(),
-            entropy: -mean(&mut s1.logp.iter().map(|l| l.to_f64())),
+            entropy,
+            prior_kl,
             edge_fraction: edge as f64 / (b * ad) as f64,
             critic_loss,
             target_q: mean(&mut y.iter().map(|v| v.to_f64())),
@@ -684,9 +774,12 @@ impl<T: Real> Sac<T> {
         sc.eps.resize(b * ad, T::ZERO);
         normals(rng, &mut sc.eps);
         self.head.sample(&self.actor, &batch.obs, b, &sc.eps, &mut sc.s1);
+        if let Some(p) = &self.config.prior {
+            p.apply(&self.head, &mut sc.s1);
+        }
         // 2. entropy coefficient
         let (alpha, alpha_loss) =
-            step_alpha(&mut self.log_alpha, &mut self.opt_alpha, &sc.s1.logp, self.config.target_entropy);
+            step_alpha(&mut self.log_alpha, &mut self.opt_alpha, &sc.s1.logp, self.config.alpha_target());
         // 3. target
         normals(rng, &mut sc.eps);
         soft_target(
@@ -697,6 +790,7 @@ impl<T: Real> Sac<T> {
             &sc.eps,
             alpha,
             T::from_f64(self.config.gamma),
+            self.config.prior.as_ref(),
             &mut sc.s2,
             &mut sc.buf,
             &mut sc.y,
@@ -714,6 +808,7 @@ impl<T: Real> Sac<T> {
             &batch.obs,
             &sc.s1,
             alpha,
+            self.config.prior.as_ref(),
             &mut sc.grads,
             &mut sc.buf,
         );

@@ -5,7 +5,7 @@
 use equigym_agents::models::{Arch, Method, Models};
 use equigym_agents::net::{Net, Tape};
 use equigym_agents::rng::{Rng, Stream};
-use equigym_agents::sac::{actor_loss_grad, alpha_loss_grad, concat_rows, critic_loss_grad, ActorSample};
+use equigym_agents::sac::{actor_loss_grad, alpha_loss_grad, concat_rows, critic_loss_grad, ActorSample, NoisePrior};
 use equigym_envs::TaskOptions;
 use equigym_wrappers::{Group, TaskSymmetry};
 
@@ -84,11 +84,21 @@ fn every_layer_matches_finite_differences() {
 
 /// The actor loss mean(alpha log pi - min Q) as a function of the actor's parameters (the
 /// function the SAC step itself calls).
-fn actor_loss(m: &Models<f64>, actor: &Net<f64>, obs: &[f64], eps: &[f64], alpha: f64) -> (f64, Vec<f64>) {
+fn actor_loss(
+    m: &Models<f64>,
+    actor: &Net<f64>,
+    obs: &[f64],
+    eps: &[f64],
+    alpha: f64,
+    prior: Option<&NoisePrior>,
+) -> (f64, Vec<f64>) {
     let mut s = ActorSample::default();
     m.head.sample(actor, obs, ROWS, eps, &mut s);
+    if let Some(p) = prior {
+        p.apply(&m.head, &mut s);
+    }
     let mut g = vec![0.0; actor.num_params()];
-    let loss = actor_loss_grad(&m.head, actor, &m.critics, obs, &s, alpha, &mut g, &mut Default::default());
+    let loss = actor_loss_grad(&m.head, actor, &m.critics, obs, &s, alpha, prior, &mut g, &mut Default::default());
     (loss, g)
 }
 
@@ -103,22 +113,27 @@ fn actor_loss_gradient_matches_finite_differences() {
         eps[0] = 1e-3;
         eps[1] = -1e-3;
         let alpha = 0.3;
-        let (_, g) = actor_loss(&m, &m.actor, &obs, &eps, alpha);
-        let stride = (m.actor.num_params() / 80).max(1);
-        for i in (0..m.actor.num_params()).step_by(stride) {
-            let mut a2 = m.actor.clone();
-            a2.params[i] += FD_STEP;
-            a2.expand();
-            let up = actor_loss(&m, &a2, &obs, &eps, alpha).0;
-            a2.params[i] -= 2.0 * FD_STEP;
-            a2.expand();
-            let down = actor_loss(&m, &a2, &obs, &eps, alpha).0;
-            let fd = (up - down) / (2.0 * FD_STEP);
-            assert!(
-                (fd - g[i]).abs() <= 1e-5 * (1.0 + fd.abs()),
-                "{method:?} actor loss: param {i}: analytic {} vs finite difference {fd}",
-                g[i]
-            );
+        // SAC's entropy term, and the KL to the noise prior in its place
+        let prior = NoisePrior { bound: 1.5, target_kl: 4.0 };
+        for prior in [None, Some(&prior)] {
+            let (_, g) = actor_loss(&m, &m.actor, &obs, &eps, alpha, prior);
+            let stride = (m.actor.num_params() / 80).max(1);
+            for i in (0..m.actor.num_params()).step_by(stride) {
+                let mut a2 = m.actor.clone();
+                a2.params[i] += FD_STEP;
+                a2.expand();
+                let up = actor_loss(&m, &a2, &obs, &eps, alpha, prior).0;
+                a2.params[i] -= 2.0 * FD_STEP;
+                a2.expand();
+                let down = actor_loss(&m, &a2, &obs, &eps, alpha, prior).0;
+                let fd = (up - down) / (2.0 * FD_STEP);
+                assert!(
+                    (fd - g[i]).abs() <= 1e-5 * (1.0 + fd.abs()),
+                    "{method:?} actor loss (prior {}): param {i}: analytic {} vs finite difference {fd}",
+                    prior.is_some(),
+                    g[i]
+                );
+            }
         }
     }
 }

@@ -329,6 +329,7 @@ def steer_run(
     terminate_on_success: bool = False,
     noise_aliased: bool = False,
     target_entropy: float | None = None,
+    prior_kl: float | None = None,
     progress: bool = False,
     stop_after_evals: int | None = None,
 ) -> dict[str, Any]: ...

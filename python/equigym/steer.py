@@ -6,6 +6,8 @@ and a report next to the SB3 baselines.
         --out runs/sweep [--sb3 dsrl equi approx --sb3-seeds 0 1 2] [--cpus 2] [--address ray://host:10001] [--resume]
     python -m equigym.steer report --runs runs/sweep/rust [--sb3-runs runs/steer] --out docs/steering/rust
     python -m equigym.steer compare RUN_DIR ... --out docs/steering/x/compare.md   # with controls and intervals
+    python -m equigym.steer screen --task stack --grid target_entropy=5,10,20 prior_kl=4 --steps 60000 \
+        --eval-every 10000 --eval-episodes 100 --out runs/screen [--cpus 2] [--resume]   # ASHA early stopping
 
 ``run`` trains in-process in Rust (the GIL is released) and writes
 ``<out>/<task>/<method>/seed<S>/log.csv`` (``env_steps, success_rate, mean_q, seconds``, as the
@@ -18,7 +20,9 @@ Results do not depend on ``--threads``.
 local Ray by default, ``--address`` joins a cluster. Each trial advances its run one evaluation
 interval at a time (each call resumes the agent's own checkpoint, so this changes nothing in the
 results) and reports to Tune after each; ``--resume`` restores an interrupted sweep with
-``Tuner.restore``. ``--sb3`` adds the SB3 + escnn baselines (``python -m baselines.steer run``, needs the
+``Tuner.restore``. ``screen`` runs every combination of ``--grid``'s run options x seeds on one
+method and task under Ray Tune's ASHA scheduler, which stops the trials whose recent success
+falls behind (:func:`screen`). ``--sb3`` adds the SB3 + escnn baselines (``python -m baselines.steer run``, needs the
 ``train`` extra), written under ``<out>/sb3``; the Rust runs go under ``<out>/rust``.
 """
 
@@ -37,13 +41,14 @@ from equigym import _core
 METHODS = ("dsrl", "equi", "approx")
 TASKS = ("lift", "stack", "square")
 #: Named bundles of run options. ``dsrl``: DSRL's own protocol (episodes run to the horizon,
-#: a critic over noise, target entropy 0). ``na-tos-h40``: the recipe that keeps the 16k-step
-#: Lift EDP's success instead of collapsing it (docs/steering.md, "The recipe on the shipped
-#: Lift EDP"): noise aliasing (an action-space critic), training episodes that end at success,
-#: and a target entropy of +40 nats (about N(0, I)'s width in the 40-d latent).
+#: a critic over noise, target entropy 0). ``na-tos-h20``: noise aliasing (an action-space
+#: critic), training episodes that end at success, and a target entropy of +20 nats, wide but
+#: within reach of the 40-d actor (at most 27.3 nats; docs/steering.md, "The recipe's target
+#: entropy is out of reach": the earlier +40 never was, so its entropy coefficient grew without
+#: end).
 RECIPES: dict[str, dict[str, Any]] = {
     "dsrl": {},
-    "na-tos-h40": {"noise_aliased": True, "terminate_on_success": True, "target_entropy": 40.0},
+    "na-tos-h20": {"noise_aliased": True, "terminate_on_success": True, "target_entropy": 20.0},
 }
 
 
@@ -74,6 +79,7 @@ def run(
     terminate_on_success: bool = False,
     noise_aliased: bool = False,
     target_entropy: float | None = None,
+    prior_kl: float | None = None,
     progress: bool = True,
 ) -> dict[str, Any]:
     """One Rust steering run (see the module docs); returns its summary (``run_dir``, ``rows``,
@@ -97,6 +103,7 @@ def run(
         terminate_on_success=terminate_on_success,
         noise_aliased=noise_aliased,
         target_entropy=target_entropy,
+        prior_kl=prior_kl,
         progress=progress,
     )
 
@@ -129,15 +136,22 @@ def _trainable(config: dict[str, Any]) -> None:
                 terminate_on_success=c.get("terminate_on_success", False),
                 noise_aliased=c.get("noise_aliased", False),
                 target_entropy=c.get("target_entropy"),
+                prior_kl=c.get("prior_kl"),
                 progress=False,
             )
-            last = s["rows"][-1] if s["rows"] else (0, float("nan"), float("nan"), 0.0)
+            rows = [tuple(r) for r in s["rows"]]
+            last = rows[-1] if rows else (0, float("nan"), float("nan"), 0.0)
             metrics = {"env_steps": last[0], "success_rate": last[1], "mean_q": last[2], "run_seconds": s["seconds"]}
         else:
             d = _run_sb3(c, target)
-            rows = (d / "log.csv").read_text().strip().splitlines()[1:]
-            last = [float(v) for v in rows[-1].split(",")] if rows else [0, float("nan"), float("nan"), 0.0]
+            lines = (d / "log.csv").read_text().strip().splitlines()[1:]
+            rows = [tuple(float(v) for v in line.split(",")) for line in lines]
+            last = rows[-1] if rows else (0, float("nan"), float("nan"), 0.0)
             metrics = {"env_steps": int(last[0]), "success_rate": last[1], "mean_q": last[2], "run_seconds": last[3]}
+        # What a scheduler compares: the mean of the last two evaluations after training started
+        # (one 100-episode evaluation has a standard error of about 0.05).
+        trained = [r[1] for r in rows[1:]]
+        metrics["success_recent"] = sum(trained[-2:]) / len(trained[-2:]) if trained else float("nan")
         # The agent keeps its own checkpoint; Tune's marks how far the trial got.
         with tempfile.TemporaryDirectory() as tmp:
             Path(tmp, "progress.json").write_text(json.dumps({"steps": target}))
@@ -198,10 +212,9 @@ def _write_sweep_record(path: Path, invocations: list[dict[str, Any]], out: Path
 
 
 def sweep(a: argparse.Namespace) -> None:
-    if (a.noise_aliased or a.target_entropy is not None) and a.sb3:
-        raise SystemExit("--noise-aliased and --target-entropy are Rust-agent options; drop --sb3 or them")
+    if (a.noise_aliased or a.target_entropy is not None or a.prior_kl is not None) and a.sb3:
+        raise SystemExit("--noise-aliased, --target-entropy and --prior-kl are Rust-agent options; drop --sb3 or them")
     try:
-        import ray
         from ray import tune
     except ImportError as e:  # pragma: no cover
         raise SystemExit("the sweep needs Ray Tune: pip install 'equigym[sweep]' (or 'ray[tune]')") from e
@@ -221,6 +234,7 @@ def sweep(a: argparse.Namespace) -> None:
         "terminate_on_success": a.terminate_on_success,
         "noise_aliased": a.noise_aliased,
         "target_entropy": a.target_entropy,
+        "prior_kl": a.prior_kl,
         "out_root": str(out),
     }
 
@@ -229,24 +243,38 @@ def sweep(a: argparse.Namespace) -> None:
         c["out"] = str(Path(c["out_root"]) / c["agent"])
         _trainable(c)
 
+    _fit(a, trainable, space, "steer")
+
+
+def _fit(a: argparse.Namespace, trainable: Any, space: dict[str, Any], name: str, scheduler: Any = None) -> Any:
+    """Run (or, with ``--resume``, restore) the Tune experiment ``name`` under ``<out>/tune``, one
+    CPU per trial, and keep ``<out>/sweep.json``'s record of invocations; returns the results."""
+    import ray
+    from ray import tune
+
+    out = Path(a.out).resolve()
     # "local": a fresh instance of --cpus CPUs, even when another Ray instance runs on this machine
     # (with no address Ray would join that one).
     ray.init(
         address=a.address or "local",
         num_cpus=a.cpus if a.address is None else None,
         ignore_reinit_error=True,
-        runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}} if a.sb3 else None,
+        runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}}
+        if getattr(a, "sb3", None)
+        else None,
     )
     resources = tune.with_resources(trainable, {"cpu": 1})
     storage = str(out / "tune")
-    name = "steer"
     started = time.time()
     restored = a.resume and tune.Tuner.can_restore(str(Path(storage) / name))
     if restored:
         tuner = tune.Tuner.restore(str(Path(storage) / name), resources, resume_errored=True)
     else:
         tuner = tune.Tuner(
-            resources, param_space=space, run_config=tune.RunConfig(name=name, storage_path=storage, verbose=1)
+            resources,
+            param_space=space,
+            tune_config=tune.TuneConfig(scheduler=scheduler),
+            run_config=tune.RunConfig(name=name, storage_path=storage, verbose=1),
         )
     # One record per invocation, written when it starts and completed when it ends, so that a
     # resumed sweep's wall time adds up (a killed invocation keeps its start time only).
@@ -266,6 +294,119 @@ def sweep(a: argparse.Namespace) -> None:
     print(f"{len(results)} trials, {len(failed)} failed, {wall:.0f} s wall")
     if failed:
         raise SystemExit(f"{len(failed)} trials failed; rerun with --resume")
+    return results
+
+
+def parse_grid(specs: list[str]) -> list[dict[str, Any]]:
+    """``--grid name=v1,v2 ...`` as the list of every combination of run options. Names are the
+    run options (``_OPTIONS``); switches take 0/1, the others numbers."""
+    axes: list[tuple[str, list[Any]]] = []
+    for spec in specs:
+        name, _, values = spec.partition("=")
+        if name not in _OPTIONS or not values:
+            raise SystemExit(f"--grid takes name=v1,v2,... with a name in {_OPTIONS}, got '{spec}'")
+        parse = float if name in _VALUED else (lambda v: {"0": False, "1": True}[v])
+        try:
+            axes.append((name, [parse(v) for v in values.split(",")]))
+        except (KeyError, ValueError):
+            raise SystemExit(f"--grid {name}: {'numbers' if name in _VALUED else '0 or 1'}, got '{values}'") from None
+    configs: list[dict[str, Any]] = [{}]
+    for name, choices in axes:
+        configs = [{**c, name: v} for c in configs for v in choices]
+    return configs
+
+
+def config_label(options: dict[str, Any]) -> str:
+    """A directory name for a screen configuration: ``target_entropy-10.0_noise_aliased``."""
+    parts = [f"{k}-{v}" if k in _VALUED else k for k, v in options.items() if v not in (False, None)]
+    return "_".join(parts) or "default"
+
+
+def screen(a: argparse.Namespace) -> None:
+    """Screen run options (``--grid``) on short runs with Ray Tune's ASHA scheduler: every
+    configuration x seed is a trial that reports after each evaluation; a trial whose recent
+    success (mean of its last two evaluations) is below the top ``1/--reduction`` of the trials
+    that reached the same step is stopped at the rungs ``--grace`` x reduction^k env steps. Each
+    trial's run lies under ``<out>/<configuration>/``; ``screen.md`` tabulates every evaluation."""
+    try:
+        from ray import tune
+        from ray.tune.schedulers import ASHAScheduler
+    except ImportError as e:  # pragma: no cover
+        raise SystemExit("the screen needs Ray Tune: pip install 'equigym[sweep]' (or 'ray[tune]')") from e
+    out = Path(a.out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    base = dict(RECIPES[a.recipe])
+    for flag in ("terminate_on_success", "noise_aliased"):
+        base[flag] = base.get(flag, False) or getattr(a, flag)
+    for opt in _VALUED:
+        if getattr(a, opt) is not None:
+            base[opt] = getattr(a, opt)
+    configs = []
+    for c in parse_grid(a.grid):
+        # the two regularisers exclude each other: the grid's replaces the recipe's
+        inherited = {k: v for k, v in base.items() if not (k in _VALUED and any(g in _VALUED for g in c))}
+        configs.append({**c, **{k: v for k, v in inherited.items() if k not in c}})  # the grid's options first
+    space = {
+        "options": tune.grid_search(configs),
+        "seed": tune.grid_search(a.seeds),
+        "agent": "rust",
+        "method": a.method,
+        "task": a.task,
+        "steps": a.steps,
+        "preset": a.preset,
+        "joint_limits": not a.no_joint_limits,
+        "eval_every": a.eval_every,
+        "eval_episodes": a.eval_episodes,
+        "policy": a.policy,
+        "ent_init": a.ent_init,
+        "out_root": str(out),
+    }
+
+    def trainable(config: dict[str, Any]) -> None:
+        c = {**config, **config["options"]}
+        c["out"] = str(Path(c["out_root"]) / config_label(config["options"]))
+        _trainable(c)
+
+    scheduler = ASHAScheduler(
+        time_attr="env_steps",
+        metric="success_recent",
+        mode="max",
+        max_t=a.steps,
+        grace_period=a.grace,
+        reduction_factor=a.reduction,
+    )
+    _fit(a, trainable, space, "screen", scheduler)
+    text = screen_table(out, a.task, a.method)
+    (out / "screen.md").write_text(text)
+    print(text)
+
+
+def screen_table(out: Path, task: str, method: str) -> str:
+    """Every screened configuration's evaluations (``log.csv``), best recent success first."""
+    rows = []
+    for d in sorted(out.glob(f"*/{task}*/{method}/seed*")):
+        log = _read_run(d)["log"]
+        rates = [float(r["success_rate"]) for r in log]
+        recent = rates[1:][-2:]
+        rows.append(
+            (
+                sum(recent) / len(recent) if recent else float("nan"),
+                d.relative_to(out).parts[0],
+                d.name,
+                ", ".join(f"{r['env_steps']}: {float(r['success_rate']):.2f}" for r in log),
+            )
+        )
+    rows.sort(key=lambda r: -r[0] if not math.isnan(r[0]) else math.inf)
+    lines = [
+        f"# Screen: {task}, {method}",
+        "",
+        "recent = mean of the last two evaluations after training started; a run that ends early was stopped by ASHA.",
+        "",
+        "| configuration | seed | recent | evaluations (env steps: success) |",
+        "|---|---|---:|---|",
+    ]
+    lines += [f"| {label} | {seed} | {recent:.3f} | {evals} |" for recent, label, seed, evals in rows]
+    return "\n".join(lines) + "\n"
 
 
 def report(a: argparse.Namespace) -> str:
@@ -284,6 +425,7 @@ _DIAGNOSTICS = (
     ("edge_fraction", "at the edge", ".3f"),
     ("critic_loss", "critic loss", ".2f"),
     ("policy_q", "Q at the actor's actions", ".1f"),
+    ("prior_kl", "KL to N(0, I)", ".1f"),
 )
 
 
@@ -323,7 +465,6 @@ def diagnose(runs: list[str], out: str | None = None) -> str:
     def cell(v: str | None, fmt: str) -> str:
         return "" if v in (None, "", "nan") else format(float(v), fmt)
 
-    options = _OPTIONS
     summary = [
         "| run | method | options | untrained actor | peak after training starts | final (last 3) |",
         "|---|---|---|---:|---:|---:|",
@@ -337,7 +478,7 @@ def diagnose(runs: list[str], out: str | None = None) -> str:
             with open(d / "train.csv", newline="") as f:
                 train = {r["env_steps"]: r for r in csv.DictReader(f)}
         meta = json.loads((d / "run.json").read_text()) if (d / "run.json").exists() else {}
-        opts = ", ".join(f"{k}={meta[k]}" if k == "target_entropy" else k for k in options if k in meta) or "-"
+        opts = ", ".join(_option_labels(meta)) or "-"
         s = summarize(log, train)
         summary.append(
             f"| `{d}` | {meta.get('method', '')} | {opts} | "
@@ -362,7 +503,9 @@ def diagnose(runs: list[str], out: str | None = None) -> str:
 CONTROL_SCALES = (1.0, 0.5, 0.0)
 #: run.json's evaluation settings when it does not name them (the runner's defaults).
 _DEFAULT_EVAL = {"eval_every": 2000, "eval_episodes": 50}
-_OPTIONS = ("terminate_on_success", "noise_aliased", "target_entropy")
+#: The run options that ``run.json`` records when set: switches, then options with a value.
+_OPTIONS = ("terminate_on_success", "noise_aliased", "target_entropy", "prior_kl")
+_VALUED = ("target_entropy", "prior_kl")
 
 
 def _read_run(d: Path) -> dict[str, Any]:
@@ -376,8 +519,12 @@ def _read_run(d: Path) -> dict[str, Any]:
     return {"dir": d, "log": log, "train": train, "meta": meta}
 
 
+def _option_labels(meta: dict[str, Any]) -> list[str]:
+    return [f"{k}={meta[k]}" if k in _VALUED else k for k in _OPTIONS if k in meta]
+
+
 def _label(meta: dict[str, Any]) -> str:
-    opts = [f"{k}={meta[k]}" if k == "target_entropy" else k for k in _OPTIONS if k in meta]
+    opts = _option_labels(meta)
     return meta["method"] + (f" ({', '.join(opts)})" if opts else "")
 
 
@@ -503,8 +650,21 @@ def main(argv: list[str] | None = None) -> None:
         prog="python -m equigym.steer", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     sub = p.add_subparsers(dest="cmd", required=True)
-    for name in ("run", "sweep"):
+    for name in ("run", "sweep", "screen"):
         s = sub.add_parser(name)
+        if name == "screen":
+            s.add_argument("--method", choices=METHODS, default="dsrl")
+            s.add_argument("--task", choices=TASKS, default="lift")
+            s.add_argument("--seeds", nargs="+", type=int, default=[0])
+            s.add_argument(
+                "--grid",
+                nargs="+",
+                required=True,
+                help="run options to screen, each name=v1,v2,... (e.g. target_entropy=5,10,20 noise_aliased=0,1)",
+            )
+            s.add_argument("--recipe", choices=sorted(RECIPES), default="dsrl", help="options the grid adds to")
+            s.add_argument("--grace", type=int, default=20_000, help="env steps before ASHA may stop a trial")
+            s.add_argument("--reduction", type=int, default=3, help="ASHA's reduction factor")
         if name == "run":
             s.add_argument("--method", choices=METHODS, required=True)
             s.add_argument("--task", choices=TASKS, default="lift")
@@ -522,7 +682,7 @@ def main(argv: list[str] | None = None) -> None:
                 default="dsrl",
                 help="named run options (RECIPES); flags add to them",
             )
-        else:
+        elif name == "sweep":
             s.add_argument("--methods", nargs="*", choices=METHODS, default=list(METHODS))
             s.add_argument("--sb3", nargs="*", choices=METHODS, default=None, help="SB3 + escnn methods to run as well")
             s.add_argument(
@@ -530,10 +690,11 @@ def main(argv: list[str] | None = None) -> None:
             )
             s.add_argument("--tasks", nargs="+", choices=TASKS, default=["lift"])
             s.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
+        if name != "run":
             s.add_argument("--cpus", type=int, default=None, help="local Ray CPUs (default: all); one per trial")
             s.add_argument("--address", default=None, help="join a Ray cluster (e.g. ray://host:10001)")
-            s.add_argument("--resume", action="store_true", help="restore an interrupted sweep (Tuner.restore)")
-            s.add_argument("--out", default="runs/sweep")
+            s.add_argument("--resume", action="store_true", help=f"restore an interrupted {name} (Tuner.restore)")
+            s.add_argument("--out", default=f"runs/{name}")
         s.add_argument("--steps", type=int, default=20_000, help="primitive environment steps per run")
         s.add_argument("--preset", choices=("cpu", "paper"), default="cpu")
         s.add_argument("--no-joint-limits", action="store_true")
@@ -554,7 +715,15 @@ def main(argv: list[str] | None = None) -> None:
             "--target-entropy",
             type=float,
             default=None,
-            help="the actor's target entropy (default: DSRL's 0; Rust agents)",
+            help="the actor's target entropy (default: DSRL's 0; below the actor's maximum, 27.3 nats for a "
+            "40-d latent; Rust agents)",
+        )
+        s.add_argument(
+            "--prior-kl",
+            type=float,
+            default=None,
+            help="regularise the actor towards the EDP's noise N(0, I) with this KL budget in nats, in place of "
+            "the target entropy (Rust agents)",
         )
         s.add_argument(
             "--ent-init", type=float, default=None, help="initial entropy coefficient (default: the preset's)"
@@ -581,6 +750,8 @@ def main(argv: list[str] | None = None) -> None:
         print(diagnose(a.runs, a.out))
     elif a.cmd == "sweep":
         sweep(a)
+    elif a.cmd == "screen":
+        screen(a)
     else:
         recipe = RECIPES[a.recipe]
         s = run(
@@ -601,6 +772,7 @@ def main(argv: list[str] | None = None) -> None:
             terminate_on_success=a.terminate_on_success or recipe.get("terminate_on_success", False),
             noise_aliased=a.noise_aliased or recipe.get("noise_aliased", False),
             target_entropy=a.target_entropy if a.target_entropy is not None else recipe.get("target_entropy"),
+            prior_kl=a.prior_kl if a.prior_kl is not None else recipe.get("prior_kl"),
             progress=not a.quiet,
         )
         print(json.dumps({k: v for k, v in s.items() if k != "rows"}, default=str))

@@ -16,7 +16,7 @@ use equigym_agents::{run, Method, Preset, RunConfig};
 const USAGE: &str =
     "usage: steer run --method {dsrl,equi,approx} --task {lift,stack,square} --seed S --steps N --out DIR \
 [--threads T] [--preset cpu|paper] [--no-joint-limits] [--controller joint|cartesian] [--eval-every N] \
-[--eval-episodes N] [--policy FILE] [--ent-init X] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X] [--quiet]";
+[--eval-episodes N] [--policy FILE] [--ent-init X] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X | --prior-kl NATS] [--quiet]";
 
 fn parse(args: &[String]) -> Result<RunConfig, String> {
     if args.first().map(String::as_str) != Some("run") {
@@ -75,6 +75,9 @@ fn parse(args: &[String]) -> Result<RunConfig, String> {
             "--target-entropy" => {
                 cfg.target_entropy =
                     Some(v.parse::<f64>().map_err(|_| format!("--target-entropy takes a number, got '{v}'"))?)
+            }
+            "--prior-kl" => {
+                cfg.prior_kl = Some(v.parse::<f64>().map_err(|_| format!("--prior-kl takes a number, got '{v}'"))?)
             }
             "--quiet" => cfg.progress = false,
             "--terminate-on-success" => cfg.terminate_on_success = true,

@@ -113,6 +113,9 @@ pub struct RunConfig {
     /// narrows to a std of about 0.3, and narrow noise is what the shipped EDPs do worst with
     /// (docs/steering.md, "Steerability").
     pub target_entropy: Option<f64>,
+    /// Regularise the actor towards the diffusion policy's own noise `N(0, I)` with this KL
+    /// budget in nats ([`crate::sac::NoisePrior`]) instead of towards a target entropy.
+    pub prior_kl: Option<f64>,
     /// Print a line per evaluation to stderr.
     pub progress: bool,
     /// Stop (as if killed) right after the checkpoint of this many evaluations (tests).
@@ -140,6 +143,7 @@ impl RunConfig {
             terminate_on_success: false,
             noise_aliased: false,
             target_entropy: None,
+            prior_kl: None,
             progress: false,
             stop_after_evals: None,
         })
@@ -191,6 +195,9 @@ impl RunConfig {
         if let Some(t) = self.target_entropy {
             later.push_str(&format!("|target_entropy={t:?}"));
         }
+        if let Some(k) = self.prior_kl {
+            later.push_str(&format!("|prior_kl={k:?}"));
+        }
         if let Some(v) = &self.variant {
             later.push_str(&format!("|variant={v}"));
         }
@@ -224,6 +231,14 @@ impl RunConfig {
         }
         if self.target_entropy.is_some_and(|t| !t.is_finite()) {
             return bad(format!("the target entropy must be finite, got {:?}", self.target_entropy));
+        }
+        if let Some(k) = self.prior_kl {
+            if !(k.is_finite() && k > 0.0) {
+                return bad(format!("the prior KL budget must be a positive number of nats, got {k}"));
+            }
+            if self.target_entropy.is_some() {
+                return bad("a prior KL budget replaces the target entropy: give one of them".into());
+            }
         }
         let ent = self.ent_init.unwrap_or(p.ent_init);
         if !(ent.is_finite() && ent > 0.0) {

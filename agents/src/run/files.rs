@@ -76,9 +76,10 @@ impl Runner {
             ));
         }
         write_atomic(&dir.join("log.csv"), s.as_bytes())?;
-        let mut s = String::from("env_steps,alpha,entropy,edge_fraction,critic_loss,target_q,policy_q\n");
+        let mut s = String::from("env_steps,alpha,entropy,edge_fraction,critic_loss,target_q,policy_q,prior_kl\n");
         for (r, d) in self.progress.rows.iter().zip(&self.progress.diagnostics) {
-            let cells = [d.alpha, d.entropy, d.edge_fraction, d.critic_loss, d.target_q, d.policy_q].map(fmt_float);
+            let cells =
+                [d.alpha, d.entropy, d.edge_fraction, d.critic_loss, d.target_q, d.policy_q, d.prior_kl].map(fmt_float);
             s.push_str(&format!("{},{}\n", r.env_steps, cells.join(",")));
         }
         write_atomic(&dir.join("train.csv"), s.as_bytes())
@@ -102,6 +103,7 @@ impl Runner {
             terminate_on_success: cfg.terminate_on_success,
             noise_aliased: cfg.noise_aliased,
             target_entropy: cfg.target_entropy,
+            prior_kl: cfg.prior_kl,
             variant: cfg.variant.as_deref(),
             eval_every: (cfg.eval_every != EVAL_EVERY).then_some(cfg.eval_every),
             eval_episodes: (cfg.eval_episodes != EVAL_EPISODES).then_some(cfg.eval_episodes),
@@ -148,6 +150,8 @@ struct RunMeta<'a> {
     noise_aliased: bool,
     #[serde(skip_serializing_if = "Option::is_none")]
     target_entropy: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    prior_kl: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     variant: Option<&'a str>,
     /// Evaluation settings and the controller, when not the defaults.
@@ -211,6 +215,7 @@ mod tests {
             terminate_on_success: false,
             noise_aliased: false,
             target_entropy: None,
+            prior_kl: None,
             variant: None,
             eval_every: None,
             eval_episodes: None,

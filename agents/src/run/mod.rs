@@ -60,7 +60,7 @@ use crate::evaluation::run_episodes;
 use crate::models::{Arch, Models, GROUP_ORDER};
 use crate::replay::{Batch, Replay, DEFAULT_CAPACITY};
 use crate::rng::{Rng, Stream};
-use crate::sac::{normals, Diagnostics, Sac, SacConfig};
+use crate::sac::{normals, Diagnostics, NoisePrior, Sac, SacConfig};
 use state::{params_hash, Progress};
 
 /// One line of `log.csv`.
@@ -166,6 +166,7 @@ impl Runner {
             tau: TAU,
             target_entropy: cfg.target_entropy.unwrap_or(TARGET_ENTROPY),
             ent_init: cfg.ent_init.unwrap_or(cfg.preset.ent_init),
+            prior: cfg.prior_kl.map(|target_kl| NoisePrior { bound: DEFAULT_LATENT_BOUND, target_kl }),
         };
         let sac = if cfg.noise_aliased {
             let action_critics = Models::<f32>::action_critics(cfg.method, &sym, arch, cfg.seed)?;
@@ -174,6 +175,15 @@ impl Runner {
             Sac::new(models, obs_dim, sac_cfg)
         };
         let latent_dim = sac.latent_dim();
+        let reachable = sac.max_entropy();
+        if sac_cfg.target_entropy >= reachable {
+            return Err(Error::InvalidOption(format!(
+                "target entropy {} is out of reach: the actor (a squashed Gaussian over the {latent_dim}-d latent) has at most \
+                 {reachable:.1} nats, so the entropy coefficient would grow without end (docs/steering.md); \
+                 choose a lower target (DSRL uses 0)",
+                sac_cfg.target_entropy
+            )));
+        }
         let chunk_dim = if cfg.noise_aliased { policy.action_dim() } else { 0 };
         Ok(Runner {
             cfg: cfg.clone(),
@@ -313,7 +323,7 @@ impl Runner {
         let mut rng = Rng::new(self.cfg.seed, Stream::Diagnostics, self.progress.rows.len() as u64);
         let mut b = Batch::<f32>::default();
         self.progress.replay.sample(MEAN_Q_SAMPLE.min(self.progress.replay.len()), &mut rng, &mut b);
-        self.sac.diagnose(&b, &mut rng)
+        self.sac.diagnose(&b, &mut rng, DEFAULT_LATENT_BOUND)
     }
 
     /// Parameters of the two noise critics together.
