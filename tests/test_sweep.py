@@ -68,6 +68,7 @@ def test_a_grid_is_every_combination_of_run_options():
         {"target_entropy": 10.0, "noise_aliased": True},
     ]
     assert [steer.config_label(c) for c in grid[:2]] == ["target_entropy-5.0", "target_entropy-5.0_noise_aliased"]
+    assert steer.parse_grid(["prior_kl=none,4"]) == [{"prior_kl": None}, {"prior_kl": 4.0}]
     for bad in (["entropy=5"], ["noise_aliased=2"], ["prior_kl=four"], ["prior_kl="]):
         with pytest.raises(SystemExit):
             steer.parse_grid(bad)
@@ -75,19 +76,20 @@ def test_a_grid_is_every_combination_of_run_options():
 
 def test_an_asha_screen_runs_each_configuration_in_its_own_directory(tmp_path):
     pytest.importorskip("ray.tune", reason="the sweep extra (Ray Tune) is not installed")
-    argv = ["screen", "--task", "lift", "--grid", "prior_kl=2,3", "--recipe", "na-tos-h20"]
+    argv = ["screen", "--task", "lift", "--grid", "prior_kl=none,3", "--recipe", "na-tos-h20"]
     argv += ["--steps", "64", "--eval-every", "32", "--grace", "32", "--eval-episodes", "2", "--cpus", "1"]
     steer.main([*argv, "--out", str(tmp_path)])
     runs = sorted(p.relative_to(tmp_path).parts[0] for p in tmp_path.glob("*/lift/dsrl/seed0"))
     # the grid's prior replaces the recipe's target entropy; the recipe's switches stay
+    # none keeps the recipe's target entropy; a budget replaces it; the recipe's switches stay
     assert runs == [
-        "prior_kl-2.0_noise_aliased_terminate_on_success",
+        "noise_aliased_terminate_on_success_target_entropy-20.0",
         "prior_kl-3.0_noise_aliased_terminate_on_success",
     ]
     for d in tmp_path.glob("*/lift/dsrl/seed0"):
         meta = json.loads((d / "run.json").read_text())
         assert meta["noise_aliased"] and meta["terminate_on_success"]
-        assert meta["prior_kl"] in (2.0, 3.0) and "target_entropy" not in meta
+        assert ("prior_kl" in meta) != ("target_entropy" in meta)
         with open(d / "log.csv") as f:
             assert [int(r["env_steps"]) for r in csv.DictReader(f)][-1] in (32, 64)
     table = (tmp_path / "screen.md").read_text()

@@ -299,13 +299,17 @@ def _fit(a: argparse.Namespace, trainable: Any, space: dict[str, Any], name: str
 
 def parse_grid(specs: list[str]) -> list[dict[str, Any]]:
     """``--grid name=v1,v2 ...`` as the list of every combination of run options. Names are the
-    run options (``_OPTIONS``); switches take 0/1, the others numbers."""
+    run options (``_OPTIONS``); switches take 0/1, the others numbers or ``none`` (unset: the
+    recipe's value, e.g. ``prior_kl=none,4`` screens the recipe's entropy target against a KL
+    budget)."""
     axes: list[tuple[str, list[Any]]] = []
     for spec in specs:
         name, _, values = spec.partition("=")
         if name not in _OPTIONS or not values:
             raise SystemExit(f"--grid takes name=v1,v2,... with a name in {_OPTIONS}, got '{spec}'")
-        parse = float if name in _VALUED else (lambda v: {"0": False, "1": True}[v])
+        parse = (
+            (lambda v: None if v == "none" else float(v)) if name in _VALUED else (lambda v: {"0": False, "1": True}[v])
+        )
         try:
             axes.append((name, [parse(v) for v in values.split(",")]))
         except (KeyError, ValueError):
@@ -344,8 +348,9 @@ def screen(a: argparse.Namespace) -> None:
     configs = []
     for c in parse_grid(a.grid):
         # the two regularisers exclude each other: the grid's replaces the recipe's
-        inherited = {k: v for k, v in base.items() if not (k in _VALUED and any(g in _VALUED for g in c))}
-        configs.append({**c, **{k: v for k, v in inherited.items() if k not in c}})  # the grid's options first
+        inherited = {k: v for k, v in base.items() if not (k in _VALUED and any(c.get(g) is not None for g in _VALUED))}
+        options = {**c, **{k: v for k, v in inherited.items() if c.get(k) is None}}  # the grid's options first
+        configs.append({k: v for k, v in options.items() if v is not None})
     space = {
         "options": tune.grid_search(configs),
         "seed": tune.grid_search(a.seeds),
