@@ -1,7 +1,7 @@
 """Type stubs for the Rust extension module ``equigym._core``."""
 
 from os import PathLike
-from typing import Any, Literal, final
+from typing import Any, Literal, TypeAlias, final
 
 import numpy as np
 import numpy.typing as npt
@@ -207,6 +207,19 @@ class LatentEnv:
     @property
     def observation_dim(self) -> int: ...
 
+#: What a batch step returns, for the vector and the latent vector envs alike: observations
+#: (float32), rewards, terminated, truncated, successes, the rows reset this step, and (in
+#: same-step autoreset mode, when a row was reset) the final observations (None otherwise).
+_BatchStep: TypeAlias = tuple[
+    npt.NDArray[np.float32],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.bool_],
+    npt.NDArray[np.bool_],
+    npt.NDArray[np.bool_],
+    npt.NDArray[np.bool_],
+    npt.NDArray[np.float32] | None,
+]
+
 @final
 class VecEnv:
     """B environments of one task stepped in Rust per call (see ``equigym.vector``)."""
@@ -221,17 +234,7 @@ class VecEnv:
         **options: Any,
     ) -> VecEnv: ...
     def reset(self, seeds: list[int], mask: list[bool] | None = None) -> npt.NDArray[np.float32]: ...
-    def step(
-        self, actions: npt.NDArray[np.float64]
-    ) -> tuple[
-        npt.NDArray[np.float32],
-        npt.NDArray[np.float64],
-        npt.NDArray[np.bool_],
-        npt.NDArray[np.bool_],
-        npt.NDArray[np.bool_],
-        npt.NDArray[np.bool_],
-        npt.NDArray[np.float32] | None,
-    ]: ...
+    def step(self, actions: npt.NDArray[np.float64]) -> _BatchStep: ...
     def observe(self) -> npt.NDArray[np.float32]: ...
     def current_targets(self) -> npt.NDArray[np.float64]: ...
     def episode_seeds(self) -> npt.NDArray[np.uint64]: ...
@@ -272,17 +275,7 @@ class LatentVecEnv:
         **options: Any,
     ) -> LatentVecEnv: ...
     def reset(self, seeds: list[int], mask: list[bool] | None = None) -> npt.NDArray[np.float32]: ...
-    def step(
-        self, actions: npt.NDArray[np.float64]
-    ) -> tuple[
-        npt.NDArray[np.float32],
-        npt.NDArray[np.float64],
-        npt.NDArray[np.bool_],
-        npt.NDArray[np.bool_],
-        npt.NDArray[np.bool_],
-        npt.NDArray[np.bool_],
-        npt.NDArray[np.float32] | None,
-    ]: ...
+    def step(self, actions: npt.NDArray[np.float64]) -> _BatchStep: ...
     def executed(self) -> npt.NDArray[np.uint64]: ...
     def last_chunks(self) -> npt.NDArray[np.float64]: ...
     def observe(self) -> npt.NDArray[np.float32]: ...
