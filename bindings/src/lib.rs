@@ -31,7 +31,7 @@ fn info_dict<'py>(py: Python<'py>, evaluation: &Evaluation) -> PyResult<Bound<'p
     d.set_item("success", evaluation.success)?;
     // Stable-Baselines3 reads this key for success-rate logging.
     d.set_item("is_success", evaluation.success)?;
-    for (k, v) in &evaluation.terms {
+    for (k, v) in &evaluation.info {
         d.set_item(*k, *v)?;
     }
     Ok(d)

@@ -271,7 +271,7 @@ impl Env {
         let evaluation = self.task.evaluate(&self.scene);
         let reward = match self.config.reward {
             RewardKind::Sparse => evaluation.success as u8 as f64,
-            RewardKind::Dense => self.task.dense_reward(&self.scene, &evaluation),
+            RewardKind::Dense => self.task.dense_reward(&self.scene),
         };
         let truncated = self.steps >= self.horizon;
         if truncated {

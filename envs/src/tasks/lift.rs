@@ -78,6 +78,37 @@ impl Lift {
     }
 }
 
+/// What Lift measures of a state: the source of its success, `info` and dense reward.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LiftMeasures {
+    /// The cube's centre is above the table by more than the lift height.
+    pub lifted: bool,
+    /// Height of the cube's underside above the table.
+    pub cube_height: f64,
+    /// Distance from the tool centre point to the cube's centre.
+    pub reach_distance: f64,
+    pub grasped: bool,
+}
+
+impl LiftMeasures {
+    /// Lift succeeds once the cube is lifted.
+    pub fn success(&self) -> bool {
+        self.lifted
+    }
+}
+
+impl Lift {
+    pub fn measure(&self, scene: &Scene) -> LiftMeasures {
+        let cube = self.cube_pose(scene).translation.vector;
+        LiftMeasures {
+            lifted: cube.z > TABLE_TOP + LIFT_HEIGHT,
+            cube_height: cube.z - self.half_size - TABLE_TOP,
+            reach_distance: (scene.tcp_pose().translation.vector - cube).norm(),
+            grasped: self.grasped(scene),
+        }
+    }
+}
+
 impl Task for Lift {
     fn id(&self) -> &'static str {
         "lift"
@@ -121,27 +152,24 @@ impl Task for Lift {
     }
 
     fn evaluate(&self, scene: &Scene) -> Evaluation {
-        let cube = self.cube_pose(scene).translation.vector;
-        let height = cube.z - self.half_size - TABLE_TOP;
-        let reach = (scene.tcp_pose().translation.vector - cube).norm();
-        let grasped = self.grasped(scene);
+        let m = self.measure(scene);
         Evaluation {
-            success: cube.z > TABLE_TOP + LIFT_HEIGHT,
-            terms: vec![
-                // Height of the cube's underside above the table.
-                ("cube_height", height),
-                ("reach_distance", reach),
-                ("grasped", grasped as u8 as f64),
+            success: m.success(),
+            info: vec![
+                ("cube_height", m.cube_height),
+                ("reach_distance", m.reach_distance),
+                ("grasped", m.grasped as u8 as f64),
             ],
         }
     }
 
-    fn dense_reward(&self, _scene: &Scene, evaluation: &Evaluation) -> f64 {
-        if evaluation.success {
+    fn dense_reward(&self, scene: &Scene) -> f64 {
+        let m = self.measure(scene);
+        if m.success() {
             return 1.0;
         }
-        let grasp = if evaluation.term("grasped") > 0.5 { 0.25 } else { 0.0 };
-        (1.0 - libm::tanh(10.0 * evaluation.term("reach_distance")) + grasp) / 2.25
+        let grasp = if m.grasped { 0.25 } else { 0.0 };
+        (1.0 - libm::tanh(10.0 * m.reach_distance) + grasp) / 2.25
     }
 
     fn objects(&self) -> &[TaskObject] {

@@ -37,18 +37,14 @@ pub struct TaskObject {
     pub half_extents: Vector3<f64>,
 }
 
-/// The outcome of [`Task::evaluate`]: success and named quantities reported in `info`.
+/// The outcome of [`Task::evaluate`]: success, and the task's measurements as `info` entries.
+/// Each task measures into its own typed struct (`LiftMeasures`, `StackMeasures`,
+/// `SquareMeasures`), from which both this and its dense reward are computed; the names here are
+/// for reporting only, nothing reads them back.
 #[derive(Clone, Debug, PartialEq, Default)]
 pub struct Evaluation {
     pub success: bool,
-    pub terms: Vec<(&'static str, f64)>,
-}
-
-impl Evaluation {
-    /// The named term, or 0 when the task reports no such term.
-    pub fn term(&self, name: &str) -> f64 {
-        self.terms.iter().find(|t| t.0 == name).map_or(0.0, |t| t.1)
-    }
+    pub info: Vec<(&'static str, f64)>,
 }
 
 /// Which reward an environment returns.
@@ -87,10 +83,10 @@ pub trait Task: Send + Sync {
     fn initialise_episode(&mut self, scene: &mut Scene, rng: &mut EpisodeRng);
     /// Write the observation (length = the layout's dimension).
     fn observe(&self, scene: &Scene, out: &mut [f64]);
-    /// Success and named terms for `info`.
+    /// Success and the task's measurements for `info`.
     fn evaluate(&self, scene: &Scene) -> Evaluation;
-    /// The shaped reward for an evaluated state.
-    fn dense_reward(&self, scene: &Scene, evaluation: &Evaluation) -> f64;
+    /// The shaped reward of a state, in [0, 1] (1 on success).
+    fn dense_reward(&self, scene: &Scene) -> f64;
     /// The task's movable objects.
     fn objects(&self) -> &[TaskObject];
     /// Per-episode parameters that live outside the physics state (object sizes), for saving.

@@ -81,6 +81,50 @@ impl Square {
     }
 }
 
+/// What Square D2 measures of a state: the source of its success, `info` and dense reward.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SquareMeasures {
+    /// Height of the nut's underside above the table.
+    pub nut_height: f64,
+    pub nut_peg_xy_distance: f64,
+    /// Distance from the tool centre point to the handle's centre.
+    pub reach_distance: f64,
+    /// Distance from the tool centre point to the nut's centre.
+    pub gripper_nut_distance: f64,
+    pub grasped: bool,
+    pub on_peg: bool,
+}
+
+impl SquareMeasures {
+    fn of(scene: &Scene, objects: &[TaskObject]) -> Self {
+        let nut_pose = common::pose_of(scene, &objects[0]);
+        let nut = nut_pose.translation.vector;
+        let peg = common::pose_of(scene, &objects[1]).translation.vector;
+        let tcp = scene.tcp_pose().translation.vector;
+        let handle = nut_pose * nalgebra::Point3::from(handle_centre());
+        Self {
+            nut_height: nut.z - NUT_HALF_HEIGHT - TABLE_TOP,
+            nut_peg_xy_distance: (nut.xy() - peg.xy()).norm(),
+            reach_distance: (tcp - handle.coords).norm(),
+            gripper_nut_distance: (tcp - nut).norm(),
+            grasped: common::grasped(scene, &objects[0]),
+            on_peg: Square::on_peg(&nut, &peg),
+        }
+    }
+
+    /// The nut sits on the peg and the hand is away from it.
+    pub fn success(&self) -> bool {
+        self.on_peg && self.gripper_nut_distance > 0.042
+    }
+}
+
+impl Square {
+    /// The state's measurements ([`SquareMeasures`]).
+    pub fn measure(&self, scene: &Scene) -> SquareMeasures {
+        SquareMeasures::of(scene, &self.objects)
+    }
+}
+
 impl Task for Square {
     fn id(&self) -> &'static str {
         "square"
@@ -158,35 +202,30 @@ impl Task for Square {
     }
 
     fn evaluate(&self, scene: &Scene) -> Evaluation {
-        let nut = common::pose_of(scene, &self.objects[0]).translation.vector;
-        let peg = common::pose_of(scene, &self.objects[1]).translation.vector;
-        let gripper_distance = (scene.tcp_pose().translation.vector - nut).norm();
-        let on_peg = Self::on_peg(&nut, &peg);
-        let grasped = common::grasped(scene, &self.objects[0]);
-        let handle = common::pose_of(scene, &self.objects[0]) * nalgebra::Point3::from(handle_centre());
+        let m = self.measure(scene);
         Evaluation {
-            success: on_peg && gripper_distance > 0.042,
-            terms: vec![
-                ("nut_height", nut.z - NUT_HALF_HEIGHT - TABLE_TOP),
-                ("nut_peg_xy_distance", (nut.xy() - peg.xy()).norm()),
-                ("reach_distance", (scene.tcp_pose().translation.vector - handle.coords).norm()),
-                ("gripper_nut_distance", gripper_distance),
-                ("grasped", grasped as u8 as f64),
-                ("on_peg", on_peg as u8 as f64),
+            success: m.success(),
+            info: vec![
+                ("nut_height", m.nut_height),
+                ("nut_peg_xy_distance", m.nut_peg_xy_distance),
+                ("reach_distance", m.reach_distance),
+                ("gripper_nut_distance", m.gripper_nut_distance),
+                ("grasped", m.grasped as u8 as f64),
+                ("on_peg", m.on_peg as u8 as f64),
             ],
         }
     }
 
     /// robosuite's NutAssembly staging, scaled to [0, 1]: reach and grasp the handle (<= 0.35),
     /// lift and hover over the peg (<= 0.7), on the peg (1).
-    fn dense_reward(&self, _scene: &Scene, e: &Evaluation) -> f64 {
-        if e.success {
+    fn dense_reward(&self, scene: &Scene) -> f64 {
+        let m = self.measure(scene);
+        if m.success() {
             return 1.0;
         }
-        let grasped = e.term("grasped") > 0.5;
-        let reach = 0.1 * (1.0 - libm::tanh(10.0 * e.term("reach_distance"))) + if grasped { 0.25 } else { 0.0 };
-        let lift = if grasped && e.term("nut_height") > 0.01 {
-            0.35 + 0.35 * (1.0 - libm::tanh(10.0 * e.term("nut_peg_xy_distance")))
+        let reach = 0.1 * (1.0 - libm::tanh(10.0 * m.reach_distance)) + if m.grasped { 0.25 } else { 0.0 };
+        let lift = if m.grasped && m.nut_height > 0.01 {
+            0.35 + 0.35 * (1.0 - libm::tanh(10.0 * m.nut_peg_xy_distance))
         } else {
             0.0
         };

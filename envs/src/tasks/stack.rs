@@ -57,6 +57,49 @@ impl Stack {
     }
 }
 
+/// What Stack D1 measures of a state: the source of its success, `info` and dense reward.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StackMeasures {
+    /// Height of cube A's underside above the table.
+    pub cube_a_height: f64,
+    /// Distance from the tool centre point to cube A's centre.
+    pub reach_distance: f64,
+    pub cubes_xy_distance: f64,
+    /// Cube A is held by the fingers.
+    pub grasped: bool,
+    /// Cube A touches cube B.
+    pub touching: bool,
+    /// Cube A's centre is more than 4 cm above the table.
+    pub lifted: bool,
+}
+
+impl StackMeasures {
+    fn of(scene: &Scene, objects: &[TaskObject]) -> Self {
+        let a = common::pose_of(scene, &objects[0]).translation.vector;
+        let b = common::pose_of(scene, &objects[1]).translation.vector;
+        Self {
+            cube_a_height: a.z - HALF_A - TABLE_TOP,
+            reach_distance: (scene.tcp_pose().translation.vector - a).norm(),
+            cubes_xy_distance: (a.xy() - b.xy()).norm(),
+            grasped: common::grasped(scene, &objects[0]),
+            touching: common::touching(scene, &objects[0], &objects[1]),
+            lifted: a.z > TABLE_TOP + 0.04,
+        }
+    }
+
+    /// Cube A rests on cube B and the hand has let go.
+    pub fn success(&self) -> bool {
+        self.lifted && self.touching && !self.grasped
+    }
+}
+
+impl Stack {
+    /// The state's measurements ([`StackMeasures`]).
+    pub fn measure(&self, scene: &Scene) -> StackMeasures {
+        StackMeasures::of(scene, &self.objects)
+    }
+}
+
 impl Task for Stack {
     fn id(&self) -> &'static str {
         "stack"
@@ -102,33 +145,29 @@ impl Task for Stack {
     }
 
     fn evaluate(&self, scene: &Scene) -> Evaluation {
-        let a = common::pose_of(scene, &self.objects[0]).translation.vector;
-        let b = common::pose_of(scene, &self.objects[1]).translation.vector;
-        let grasped = common::grasped(scene, &self.objects[0]);
-        let touching = common::touching(scene, &self.objects[0], &self.objects[1]);
-        let lifted = a.z > TABLE_TOP + 0.04;
+        let m = self.measure(scene);
         Evaluation {
-            success: lifted && touching && !grasped,
-            terms: vec![
-                ("cubeA_height", a.z - HALF_A - TABLE_TOP),
-                ("reach_distance", (scene.tcp_pose().translation.vector - a).norm()),
-                ("cubes_xy_distance", (a.xy() - b.xy()).norm()),
-                ("grasped", grasped as u8 as f64),
-                ("cubes_touching", touching as u8 as f64),
+            success: m.success(),
+            info: vec![
+                ("cubeA_height", m.cube_a_height),
+                ("reach_distance", m.reach_distance),
+                ("cubes_xy_distance", m.cubes_xy_distance),
+                ("grasped", m.grasped as u8 as f64),
+                ("cubes_touching", m.touching as u8 as f64),
             ],
         }
     }
 
     /// robosuite's staged Stack reward, scaled to [0, 1]: reach and grasp A (<= 0.5), lift and
     /// align A over B (<= 1.5), stacked (2).
-    fn dense_reward(&self, _scene: &Scene, e: &Evaluation) -> f64 {
-        if e.success {
+    fn dense_reward(&self, scene: &Scene) -> f64 {
+        let m = self.measure(scene);
+        if m.success() {
             return 1.0;
         }
-        let grasped = e.term("grasped") > 0.5;
-        let reach = 0.25 * (1.0 - libm::tanh(10.0 * e.term("reach_distance"))) + if grasped { 0.25 } else { 0.0 };
-        let lift = if grasped && e.term("cubeA_height") > 0.01 {
-            1.0 + 0.5 * (1.0 - libm::tanh(10.0 * e.term("cubes_xy_distance")))
+        let reach = 0.25 * (1.0 - libm::tanh(10.0 * m.reach_distance)) + if m.grasped { 0.25 } else { 0.0 };
+        let lift = if m.grasped && m.cube_a_height > 0.01 {
+            1.0 + 0.5 * (1.0 - libm::tanh(10.0 * m.cubes_xy_distance))
         } else {
             0.0
         };
