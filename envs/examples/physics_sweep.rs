@@ -12,7 +12,7 @@ use std::time::Instant;
 use equigym_envs::experts::{make_expert, ExpertOptions};
 use equigym_envs::rng::EpisodeRng;
 use equigym_envs::world::deepest_penetration;
-use equigym_envs::{Env, EnvConfig};
+use equigym_envs::{Env, EnvConfig, ACTION_DIM};
 use rapier3d::prelude::ColliderHandle;
 
 mod shared;
@@ -43,7 +43,7 @@ fn main() {
             let objects: Vec<ColliderHandle> = env.task().objects().iter().flat_map(|o| o.colliders.clone()).collect();
             let table = env.scene().statics.table;
             let top = env.task().scene_spec().table.top;
-            let mut a = [0.0; 10];
+            let mut a = [0.0; ACTION_DIM];
             for t in 0..400 {
                 if t % 8 == 0 {
                     a = random_target(&mut rng, top);

@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use equigym_envs::env::STATE_CHECKSUM_LEN;
 use equigym_envs::rng::EpisodeRng;
-use equigym_envs::{Env, EnvConfig};
+use equigym_envs::{Action, Env, EnvConfig};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
@@ -17,7 +17,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut env = Env::new(EnvConfig::new(task))?;
     let mut rng = EpisodeRng::from_seed(0);
     let (lo, hi) = env.action_bounds();
-    let actions: Vec<[f64; 10]> = (0..steps).map(|_| std::array::from_fn(|k| rng.uniform(lo[k], hi[k]))).collect();
+    let actions: Vec<Action> = (0..steps).map(|_| std::array::from_fn(|k| rng.uniform(lo[k], hi[k]))).collect();
     env.reset(0)?;
     let start = Instant::now();
     let mut resets = 0.0;

@@ -9,7 +9,7 @@ use nalgebra::{Isometry3, Translation3};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{check_finite, EnvError, Result};
-use crate::layout::Layout;
+use crate::layout::{Action, Layout};
 use crate::math::rotation_from_rot6d;
 use crate::options::EnvSpec;
 use crate::rng::EpisodeRng;
@@ -67,7 +67,7 @@ struct SavedState {
     steps: usize,
     in_episode: bool,
     task_params: Vec<f64>,
-    last_target: [f64; 10],
+    last_target: Action,
 }
 
 pub struct Env {
@@ -80,7 +80,7 @@ pub struct Env {
     in_episode: bool,
     obs: Vec<f64>,
     /// Last applied action (the target kept when a 6D rotation is degenerate).
-    last_target: [f64; 10],
+    last_target: Action,
     /// The scene as built, restored at every reset.
     pristine: Vec<u8>,
 }
@@ -128,7 +128,7 @@ impl Env {
             horizon,
             in_episode: false,
             obs,
-            last_target: [0.0; 10],
+            last_target: [0.0; ACTION_DIM],
         })
     }
 
@@ -176,10 +176,10 @@ impl Env {
     }
 
     /// Lower and upper bounds of the raw action.
-    pub fn action_bounds(&self) -> ([f64; 10], [f64; 10]) {
+    pub fn action_bounds(&self) -> (Action, Action) {
         let w = self.max_gripper_width();
-        let mut lo = [-1.0; 10];
-        let mut hi = [1.0; 10];
+        let mut lo = [-1.0; ACTION_DIM];
+        let mut hi = [1.0; ACTION_DIM];
         lo[..3].copy_from_slice(&POSITION_LOW);
         hi[..3].copy_from_slice(&POSITION_HIGH);
         lo[9] = 0.0;
@@ -212,11 +212,11 @@ impl Env {
     }
 
     /// The action that holds the robot where it is now.
-    pub fn current_target(&self) -> [f64; 10] {
+    pub fn current_target(&self) -> Action {
         let tcp = self.scene.tcp_pose();
         let r = crate::math::rot6d(&tcp.rotation);
         let f = self.scene.finger_positions();
-        let mut a = [0.0; 10];
+        let mut a = [0.0; ACTION_DIM];
         a[..3].copy_from_slice(tcp.translation.vector.as_slice());
         a[3..9].copy_from_slice(&r);
         a[9] = (f[0] + f[1]).clamp(0.0, self.max_gripper_width());
@@ -240,7 +240,7 @@ impl Env {
         }
         check_finite("action", action, ACTION_DIM)?;
         let (lo, hi) = self.action_bounds();
-        let mut a = [0.0; 10];
+        let mut a = [0.0; ACTION_DIM];
         for k in 0..ACTION_DIM {
             a[k] = action[k].clamp(lo[k], hi[k]);
         }

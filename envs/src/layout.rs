@@ -9,6 +9,8 @@ use serde::{Deserialize, Serialize};
 
 /// Dimension of every task's action: TCP position (3), 6D rotation (6), gripper width (1).
 pub const ACTION_DIM: usize = 10;
+/// One control action ([`ACTION_DIM`] values: TCP position, 6D rotation, gripper width).
+pub type Action = [f64; ACTION_DIM];
 
 /// How a field transforms under a rotation about the world z axis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]

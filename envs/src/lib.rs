@@ -40,6 +40,7 @@ pub mod world;
 pub use batch::{AutoresetMode, BatchEnv, BatchMember, MemberStep};
 pub use env::{Env, EnvConfig, StepResult, ACTION_DIM};
 pub use error::{EnvError, Result};
+pub use layout::Action;
 pub use layout::{Field, FieldKind, Layout};
 pub use options::{Controller, EnvOptions, EnvSpec};
 pub use tasks::{RewardKind, TaskOptions};

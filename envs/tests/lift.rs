@@ -3,15 +3,15 @@
 
 use equigym_envs::experts::{make_expert, ExpertOptions};
 use equigym_envs::rng::EpisodeRng;
-use equigym_envs::{Env, EnvConfig, EnvError, RewardKind};
+use equigym_envs::{Action, Env, EnvConfig, EnvError, RewardKind, ACTION_DIM};
 
 fn lift() -> Env {
     Env::new(EnvConfig::new("lift")).unwrap()
 }
 
-fn random_action(env: &Env, rng: &mut EpisodeRng) -> [f64; 10] {
+fn random_action(env: &Env, rng: &mut EpisodeRng) -> Action {
     let (lo, hi) = env.action_bounds();
-    let mut a = [0.0; 10];
+    let mut a = [0.0; ACTION_DIM];
     for k in 0..10 {
         a[k] = rng.uniform(lo[k], hi[k]);
     }
@@ -93,7 +93,7 @@ fn state_round_trip_restores_bitwise() {
         env.step(&a).unwrap();
     }
     let state = env.get_state().unwrap();
-    let actions: Vec<[f64; 10]> = (0..30)
+    let actions: Vec<Action> = (0..30)
         .map(|_| {
             let a = expert.act(&env);
             env.step(&a).unwrap();
@@ -256,7 +256,7 @@ fn absolute_targets_are_tracked() {
 #[test]
 fn bad_actions_give_typed_errors() {
     let mut env = lift();
-    assert!(matches!(env.step(&[0.0; 10]), Err(EnvError::CallOrder(_))));
+    assert!(matches!(env.step(&[0.0; ACTION_DIM]), Err(EnvError::CallOrder(_))));
     env.reset(0).unwrap();
     assert!(matches!(env.step(&[0.0; 9]), Err(EnvError::WrongLength { expected: 10, got: 9, .. })));
     let mut a = env.current_target();

@@ -13,7 +13,7 @@
 
 use equigym_envs::math::rot6d;
 use equigym_envs::rng::EpisodeRng;
-use equigym_envs::{Env, EnvConfig};
+use equigym_envs::{Env, EnvConfig, ACTION_DIM};
 use rapier3d::prelude::*;
 
 /// Links of the test pendulum, each a 0.2 m capsule of 1 kg.
@@ -116,7 +116,7 @@ fn the_arm_follows_the_same_joint_path_either_way() {
         let mut rng = EpisodeRng::from_seed(11);
         let mut path = Vec::new();
         // Targets within 10 cm of the home TCP (free space above the table), 4 control steps each.
-        let mut a = [0.0; 10];
+        let mut a = [0.0; ACTION_DIM];
         for t in 0..80 {
             if t % 4 == 0 {
                 let p = home.translation.vector;

@@ -7,7 +7,7 @@ use equigym_envs::experts::{make_expert, ExpertOptions};
 use equigym_envs::math::rot6d;
 use equigym_envs::rng::EpisodeRng;
 use equigym_envs::world::deepest_penetration;
-use equigym_envs::{Env, EnvConfig};
+use equigym_envs::{Action, Env, EnvConfig, ACTION_DIM};
 use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
 use rapier3d::prelude::ColliderHandle;
 
@@ -194,8 +194,8 @@ fn reachable_target(env: &Env, rng: &mut EpisodeRng) -> Isometry3<f64> {
     }
 }
 
-fn action_for(pose: &Isometry3<f64>, width: f64) -> [f64; 10] {
-    let mut a = [0.0; 10];
+fn action_for(pose: &Isometry3<f64>, width: f64) -> Action {
+    let mut a = [0.0; ACTION_DIM];
     a[..3].copy_from_slice(pose.translation.vector.as_slice());
     a[3..9].copy_from_slice(&rot6d(&pose.rotation));
     a[9] = width;

@@ -16,7 +16,7 @@
 use equigym_envs::experts::{make_expert, ExpertOptions};
 use equigym_envs::math::from_pose;
 use equigym_envs::rng::{EpisodeRng, SeedUse};
-use equigym_envs::{Env, EnvConfig, EnvError, RewardKind};
+use equigym_envs::{Action, Env, EnvConfig, EnvError, RewardKind};
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
 
@@ -129,7 +129,7 @@ impl BreakingReport {
 
 struct Demo {
     seed: u64,
-    actions: Vec<[f64; 10]>,
+    actions: Vec<Action>,
     states: Vec<Vec<u8>>,
     success: bool,
 }

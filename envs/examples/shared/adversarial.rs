@@ -3,11 +3,12 @@
 //! the same kind of targets in the same order.
 
 use equigym_envs::rng::EpisodeRng;
+use equigym_envs::{Action, ACTION_DIM};
 
 /// A uniformly random absolute target (far outside the box, mostly near the table top `top` and
 /// often below it), random rotation and width.
-pub fn random_target(rng: &mut EpisodeRng, top: f64) -> [f64; 10] {
-    let mut a = [0.0; 10];
+pub fn random_target(rng: &mut EpisodeRng, top: f64) -> Action {
+    let mut a = [0.0; ACTION_DIM];
     for v in a.iter_mut().take(3) {
         *v = rng.uniform(-1.2, 1.2);
     }

@@ -1,5 +1,6 @@
 //! Lift expert: above the cube, down, close, lift.
 
+use crate::layout::Action;
 use nalgebra::{UnitQuaternion, Vector3};
 
 use super::{object_pose, top_down_grasp, Expert, ExpertOptions, Phase, Waypoints};
@@ -35,7 +36,7 @@ impl Expert for LiftExpert {
         self.rotation = top_down_grasp(env, yaw, std::f64::consts::FRAC_PI_2);
     }
 
-    fn act(&mut self, env: &Env) -> [f64; 10] {
+    fn act(&mut self, env: &Env) -> Action {
         let cube = object_pose(env, 0).translation.vector;
         let half = env.task().objects()[0].half_extents.z;
         let tcp = env.scene().tcp_pose().translation.vector;

@@ -7,6 +7,7 @@ pub mod lift;
 pub mod square;
 pub mod stack;
 
+use crate::layout::{Action, ACTION_DIM};
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 
 use crate::env::Env;
@@ -19,7 +20,7 @@ pub trait Expert: Send + Sync {
     /// Called after `Env::reset`.
     fn reset(&mut self, env: &Env, seed: u64);
     /// The next action.
-    fn act(&mut self, env: &Env) -> [f64; 10];
+    fn act(&mut self, env: &Env) -> Action;
     /// Short name of the current phase (for logging and failure statistics).
     fn phase(&self) -> &'static str;
 }
@@ -122,8 +123,8 @@ impl Waypoints {
     }
 
     /// The action for the commanded point, a rotation and a gripper width (with noise).
-    pub fn action(&mut self, rotation: &UnitQuaternion<f64>, width: f64) -> [f64; 10] {
-        let mut a = [0.0; 10];
+    pub fn action(&mut self, rotation: &UnitQuaternion<f64>, width: f64) -> Action {
+        let mut a = [0.0; ACTION_DIM];
         let sigma = self.options.position_noise;
         for (ak, ck) in a.iter_mut().zip(self.commanded.iter()) {
             *ak = ck + if sigma > 0.0 { sigma * self.rng.normal() } else { 0.0 };

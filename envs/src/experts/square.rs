@@ -11,6 +11,7 @@
 //! (7.6 cm) loads the finger motors to their force cap, and both fingers stay outside the hole,
 //! so the nut can be put down the peg while still held.
 
+use crate::layout::Action;
 use nalgebra::{Point3, UnitQuaternion, Vector3};
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
 
@@ -110,7 +111,7 @@ impl Expert for SquareExpert {
         self.carry_rotation = self.rotation;
     }
 
-    fn act(&mut self, env: &Env) -> [f64; 10] {
+    fn act(&mut self, env: &Env) -> Action {
         let nut_pose = object_pose(env, 0);
         let nut = nut_pose.translation.vector;
         let grip = (nut_pose * Point3::from(nut_centre_of_mass(env))).coords;

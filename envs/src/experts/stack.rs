@@ -1,5 +1,6 @@
 //! Stack expert: grasp cube A, lift it clear of B, carry it over B, lower it onto B, release.
 
+use crate::layout::Action;
 use nalgebra::{UnitQuaternion, Vector3};
 
 use super::{object_pose, top_down_grasp, Expert, ExpertOptions, Phase, Waypoints};
@@ -32,7 +33,7 @@ impl Expert for StackExpert {
         self.rotation = top_down_grasp(env, yaw, std::f64::consts::FRAC_PI_2);
     }
 
-    fn act(&mut self, env: &Env) -> [f64; 10] {
+    fn act(&mut self, env: &Env) -> Action {
         let a = object_pose(env, 0).translation.vector;
         let b = object_pose(env, 1).translation.vector;
         let tcp = env.scene().tcp_pose().translation.vector;
