@@ -114,10 +114,6 @@ impl Task for Lift {
         "lift"
     }
 
-    fn horizon(&self) -> usize {
-        400
-    }
-
     fn observation_layout(&self) -> &Layout {
         &self.layout
     }

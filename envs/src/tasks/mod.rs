@@ -71,8 +71,10 @@ impl std::str::FromStr for RewardKind {
 pub trait Task: Send + Sync {
     /// Short identifier ("lift").
     fn id(&self) -> &'static str;
-    /// Episode length in control steps.
-    fn horizon(&self) -> usize;
+    /// Episode length in control steps (the table-top tasks' shared [`tabletop::HORIZON`]).
+    fn horizon(&self) -> usize {
+        tabletop::HORIZON
+    }
     /// Names, slices and representations of the observation.
     fn observation_layout(&self) -> &Layout;
     /// Table and robot placement.

@@ -130,10 +130,6 @@ impl Task for Square {
         "square"
     }
 
-    fn horizon(&self) -> usize {
-        400
-    }
-
     fn observation_layout(&self) -> &Layout {
         &self.layout
     }

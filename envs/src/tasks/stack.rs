@@ -105,10 +105,6 @@ impl Task for Stack {
         "stack"
     }
 
-    fn horizon(&self) -> usize {
-        400
-    }
-
     fn observation_layout(&self) -> &Layout {
         &self.layout
     }

@@ -14,6 +14,10 @@ pub const ROBOT_BASE_X: f64 = -0.56;
 /// Height of the robot base above the table top (its mount, m).
 pub const MOUNT_HEIGHT: f64 = 0.112;
 
+/// Episode length in control steps of every table-top task: the evaluation horizon of EquiDiff
+/// and MimicGen for Lift, Stack D1 and Square D2.
+pub const HORIZON: usize = 400;
+
 /// The Panda's home posture in robosuite.
 pub fn panda_home() -> Vec<f64> {
     use std::f64::consts::PI;
