@@ -1,5 +1,6 @@
 //! Binding of the Rust steering agents (`equigym-agents`): one run, the GIL released.
 
+use equigym_envs::Controller;
 use std::path::PathBuf;
 
 use equigym_agents::{evaluate_base as base_evaluation, run, Method, Preset, RunConfig};
@@ -58,7 +59,7 @@ pub fn steer_run<'py>(
     cfg.threads = threads;
     cfg.preset = Preset::named(preset).map_err(to_py)?;
     cfg.joint_limits = joint_limits;
-    cfg.cartesian = parse_controller(controller)?;
+    cfg.controller = parse_controller(controller)?;
     cfg.eval_every = eval_every;
     cfg.eval_episodes = eval_episodes;
     cfg.policy = policy;
@@ -93,15 +94,8 @@ pub fn steer_run<'py>(
 }
 
 /// `None` keeps the environment's default controller.
-fn parse_controller(controller: Option<&str>) -> PyResult<Option<bool>> {
-    match controller {
-        None => Ok(None),
-        Some("joint") => Ok(Some(false)),
-        Some("cartesian") => Ok(Some(true)),
-        Some(other) => {
-            Err(crate::errors::invalid_input(format!("controller must be 'joint' or 'cartesian', got '{other}'")))
-        }
-    }
+fn parse_controller(controller: Option<&str>) -> PyResult<Option<Controller>> {
+    controller.map(|c| c.parse::<Controller>()).transpose().map_err(to_py)
 }
 
 /// The base policy on the pinned evaluation starts (seeds `EVAL_SEED + k`) with latent noise
@@ -128,7 +122,7 @@ pub fn evaluate_base<'py>(
     let mut cfg = RunConfig::new(Method::Dsrl, task, seed, 0, PathBuf::new()).map_err(to_py)?;
     cfg.eval_episodes = episodes;
     cfg.policy = policy;
-    cfg.cartesian = parse_controller(controller)?;
+    cfg.controller = parse_controller(controller)?;
     cfg.joint_limits = joint_limits;
     cfg.horizon = horizon;
     cfg.variant = variant;

@@ -63,6 +63,27 @@ pub enum Controller {
     Cartesian,
 }
 
+impl Controller {
+    /// The option's spelling (`"joint"`, `"cartesian"`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Controller::Joint => "joint",
+            Controller::Cartesian => "cartesian",
+        }
+    }
+}
+
+impl std::str::FromStr for Controller {
+    type Err = EnvError;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "joint" => Ok(Controller::Joint),
+            "cartesian" => Ok(Controller::Cartesian),
+            other => Err(EnvError::InvalidConfig(format!("controller must be 'joint' or 'cartesian', got '{other}'"))),
+        }
+    }
+}
+
 /// How an environment is configured (see the module documentation). Field names are the
 /// keyword arguments of the Python environments.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

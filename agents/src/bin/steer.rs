@@ -9,6 +9,7 @@
 //! Writes `OUT/<task>/<method>/seed<S>/log.csv` (and run.json, summary.json, checkpoint.bin);
 //! started again with the same arguments it resumes from the checkpoint.
 
+use equigym_envs::Controller;
 use std::process::ExitCode;
 
 use equigym_agents::{run, Method, Preset, RunConfig};
@@ -58,13 +59,7 @@ fn parse(args: &[String]) -> Result<RunConfig, String> {
             "--threads" => cfg.threads = num()?,
             "--preset" => cfg.preset = Preset::named(&v).map_err(|e| e.to_string())?,
             "--no-joint-limits" => cfg.joint_limits = false,
-            "--controller" => {
-                cfg.cartesian = Some(match v.as_str() {
-                    "joint" => false,
-                    "cartesian" => true,
-                    _ => return Err(format!("--controller must be joint or cartesian, got '{v}'")),
-                })
-            }
+            "--controller" => cfg.controller = Some(v.parse::<Controller>().map_err(|e| format!("--controller: {e}"))?),
             "--eval-every" => cfg.eval_every = num()?,
             "--eval-episodes" => cfg.eval_episodes = num()?,
             "--policy" => cfg.policy = Some(v.into()),

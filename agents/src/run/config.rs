@@ -2,6 +2,7 @@
 //! ([`Preset`]), DSRL's constants, the checks on a configuration and the fingerprint that a
 //! checkpoint must match to be resumed.
 
+use equigym_envs::Controller;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -86,7 +87,7 @@ pub struct RunConfig {
     pub preset: Preset,
     pub joint_limits: bool,
     /// Arm controller: None keeps the environment's default, Some(true) Cartesian, Some(false) joint.
-    pub cartesian: Option<bool>,
+    pub controller: Option<Controller>,
     pub eval_every: usize,
     pub eval_episodes: usize,
     /// Diffusion policy file (default: the shipped one for the task).
@@ -133,7 +134,7 @@ impl RunConfig {
             threads: 1,
             preset: Preset::named("cpu")?,
             joint_limits: true,
-            cartesian: None,
+            controller: None,
             eval_every: EVAL_EVERY,
             eval_episodes: EVAL_EPISODES,
             policy: None,
@@ -155,10 +156,9 @@ impl RunConfig {
         if !self.joint_limits {
             task.push_str("-nolimits");
         }
-        match self.cartesian {
-            Some(true) => task.push_str("-cartesian"),
-            Some(false) => task.push_str("-joint"),
-            None => {}
+        if let Some(c) = self.controller {
+            task.push('-');
+            task.push_str(c.name());
         }
         self.out.join(task).join(self.method.name()).join(format!("seed{}", self.seed))
     }
@@ -208,7 +208,8 @@ impl RunConfig {
             self.seed,
             self.preset,
             self.joint_limits,
-            self.cartesian,
+            // spelled as the earlier `cartesian: Option<bool>`, so that checkpoints still resume
+            self.controller.map(|c| c == Controller::Cartesian),
             self.eval_every,
             self.eval_episodes,
             self.policy_path().display(),

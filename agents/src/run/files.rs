@@ -3,6 +3,7 @@
 //! (step counts, weights hash, clock and time split) and `run.json` (what the run is, for
 //! reports; the layout of the committed runs).
 
+use equigym_envs::Controller;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
@@ -107,7 +108,7 @@ impl Runner {
             variant: cfg.variant.as_deref(),
             eval_every: (cfg.eval_every != EVAL_EVERY).then_some(cfg.eval_every),
             eval_episodes: (cfg.eval_episodes != EVAL_EPISODES).then_some(cfg.eval_episodes),
-            controller: cfg.cartesian.map(|c| if c { "cartesian" } else { "joint" }),
+            controller: cfg.controller.map(Controller::name),
             horizon: cfg.horizon,
         };
         write_atomic(&dir.join("run.json"), meta.to_json().as_bytes())

@@ -44,7 +44,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
-use equigym_envs::{AutoresetMode, Env, EnvConfig};
+use equigym_envs::{AutoresetMode, Controller, Env, EnvConfig};
 use equigym_wrappers::latent::{latent_batch, LatentBatchEnv};
 use equigym_wrappers::{DiffusionPolicy, Group, LatentEnv, TaskSymmetry, DEFAULT_LATENT_BOUND};
 use serde::{Deserialize, Serialize};
@@ -335,8 +335,8 @@ impl Runner {
 pub fn make_env(cfg: &RunConfig, policy: &Arc<DiffusionPolicy>) -> Result<LatentEnv> {
     let mut ec = EnvConfig::new(&cfg.task);
     ec.physics.joint_limits = cfg.joint_limits;
-    if let Some(c) = cfg.cartesian {
-        ec.physics.cartesian_control = c;
+    if let Some(c) = cfg.controller {
+        ec.physics.cartesian_control = c == Controller::Cartesian;
     }
     ec.horizon = cfg.horizon;
     ec.task_options.variant = cfg.variant.clone();
