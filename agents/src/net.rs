@@ -447,35 +447,7 @@ impl<T: Real> Net<T> {
                 Layer::Linear(lin) => {
                     let (n_in, n_out) = (lin.n_in, lin.n_out);
                     if let Some(g) = grads.as_deref_mut() {
-                        match &lin.kind {
-                            LinearKind::Dense { w, b } => {
-                                gemm(n_in, n_out, rows, input, Trans::T, d, &mut g[*w..*w + n_in * n_out], true);
-                                ops::add_column_sums(d, &mut g[*b..*b + n_out]);
-                            }
-                            LinearKind::Equi { basis, w, plain } => {
-                                scratch.clear();
-                                scratch.resize(n_in * n_out + n_out, T::ZERO);
-                                let (gw, gb) = scratch.split_at_mut(n_in * n_out);
-                                gemm(n_in, n_out, rows, input, Trans::T, d, gw, false);
-                                ops::add_column_sums(d, gb);
-                                for &(e, p, c) in &basis.weights {
-                                    let i = *w + p as usize;
-                                    g[i] += gw[e as usize] * T::from_f64(c);
-                                }
-                                let bias_at = *w + basis.n_weights;
-                                for &(o, p) in &basis.bias {
-                                    g[bias_at + p as usize] += gb[o as usize];
-                                }
-                                if let Some((pw, pb)) = plain {
-                                    for (gi, v) in g[*pw..*pw + n_in * n_out].iter_mut().zip(gw.iter()) {
-                                        *gi += *v;
-                                    }
-                                    for (gi, v) in g[*pb..*pb + n_out].iter_mut().zip(gb.iter()) {
-                                        *gi += *v;
-                                    }
-                                }
-                            }
-                        }
+                        linear_param_grads(lin, input, d, rows, g, scratch);
                     }
                     if need_dx {
                         ops::resize_for_overwrite(next, rows * n_in);
@@ -514,39 +486,13 @@ impl<T: Real> Net<T> {
                 }
                 Layer::Relu => ops::relu_backward(output, d),
                 Layer::PoolHead { fields, order, w, b, plain } => {
-                    let width = fields * order;
+                    let head = PoolHeadRef { fields: *fields, order: *order, w: *w, b: *b, plain: *plain };
                     let am = &tape.argmax[l];
                     if let Some(g) = grads.as_deref_mut() {
-                        for r in 0..rows {
-                            let h = &input[r * width..(r + 1) * width];
-                            for f in 0..*fields {
-                                let a = am[r * fields + f] as usize;
-                                g[*w + f] += d[r] * h[f * order + a];
-                            }
-                            g[*b] += d[r];
-                            if let Some((pw, pb)) = plain {
-                                for (i, v) in h.iter().enumerate() {
-                                    g[pw + i] += d[r] * *v;
-                                }
-                                g[*pb] += d[r];
-                            }
-                        }
+                        head.param_grads(input, am, d, rows, g);
                     }
                     if need_dx {
-                        next.clear();
-                        next.resize(rows * width, T::ZERO);
-                        for r in 0..rows {
-                            let row = &mut next[r * width..(r + 1) * width];
-                            if let Some((pw, _)) = plain {
-                                for (i, v) in row.iter_mut().enumerate() {
-                                    *v = d[r] * self.params[pw + i];
-                                }
-                            }
-                            for f in 0..*fields {
-                                let a = am[r * fields + f] as usize;
-                                row[f * order + a] += d[r] * self.params[*w + f];
-                            }
-                        }
+                        head.input_grads(&self.params, am, d, rows, next);
                         std::mem::swap(d, next);
                     }
                 }
@@ -608,3 +554,92 @@ impl<T: Real> Net<T> {
 /// A network's parameters in a checkpoint.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SavedParams<T>(pub Vec<T>);
+
+/// A linear layer's parameter gradients for output gradients `d` at `input` (`rows` rows), added
+/// into `g`; an equivariant layer's dense gradient goes through `scratch` and back onto its basis
+/// coefficients (and its plain path, for Approx-Equi).
+fn linear_param_grads<T: Real>(lin: &Linear<T>, input: &[T], d: &[T], rows: usize, g: &mut [T], scratch: &mut Vec<T>) {
+    let (n_in, n_out) = (lin.n_in, lin.n_out);
+    match &lin.kind {
+        LinearKind::Dense { w, b } => {
+            gemm(n_in, n_out, rows, input, Trans::T, d, &mut g[*w..*w + n_in * n_out], true);
+            ops::add_column_sums(d, &mut g[*b..*b + n_out]);
+        }
+        LinearKind::Equi { basis, w, plain } => {
+            scratch.clear();
+            scratch.resize(n_in * n_out + n_out, T::ZERO);
+            let (gw, gb) = scratch.split_at_mut(n_in * n_out);
+            gemm(n_in, n_out, rows, input, Trans::T, d, gw, false);
+            ops::add_column_sums(d, gb);
+            for &(e, p, c) in &basis.weights {
+                let i = *w + p as usize;
+                g[i] += gw[e as usize] * T::from_f64(c);
+            }
+            let bias_at = *w + basis.n_weights;
+            for &(o, p) in &basis.bias {
+                g[bias_at + p as usize] += gb[o as usize];
+            }
+            if let Some((pw, pb)) = plain {
+                for (gi, v) in g[*pw..*pw + n_in * n_out].iter_mut().zip(gw.iter()) {
+                    *gi += *v;
+                }
+                for (gi, v) in g[*pb..*pb + n_out].iter_mut().zip(gb.iter()) {
+                    *gi += *v;
+                }
+            }
+        }
+    }
+}
+
+/// The group-pooling head's shape and parameter offsets, for its backward pass.
+#[derive(Clone, Copy)]
+struct PoolHeadRef {
+    fields: usize,
+    order: usize,
+    w: usize,
+    b: usize,
+    plain: Option<(usize, usize)>,
+}
+
+impl PoolHeadRef {
+    /// Parameter gradients for output gradients `d` (one per row) at `input`, through each
+    /// field's arg-max `am`, added into `g`.
+    fn param_grads<T: Real>(&self, input: &[T], am: &[u32], d: &[T], rows: usize, g: &mut [T]) {
+        let (fields, order) = (self.fields, self.order);
+        let width = fields * order;
+        for r in 0..rows {
+            let h = &input[r * width..(r + 1) * width];
+            for f in 0..fields {
+                let a = am[r * fields + f] as usize;
+                g[self.w + f] += d[r] * h[f * order + a];
+            }
+            g[self.b] += d[r];
+            if let Some((pw, pb)) = self.plain {
+                for (i, v) in h.iter().enumerate() {
+                    g[pw + i] += d[r] * *v;
+                }
+                g[pb] += d[r];
+            }
+        }
+    }
+
+    /// Input gradients into `next` (rows x fields * order, overwritten).
+    fn input_grads<T: Real>(&self, params: &[T], am: &[u32], d: &[T], rows: usize, next: &mut Vec<T>) {
+        let (fields, order) = (self.fields, self.order);
+        let width = fields * order;
+        next.clear();
+        next.resize(rows * width, T::ZERO);
+        for r in 0..rows {
+            let row = &mut next[r * width..(r + 1) * width];
+            if let Some((pw, _)) = self.plain {
+                for (i, v) in row.iter_mut().enumerate() {
+                    *v = d[r] * params[pw + i];
+                }
+            }
+            for f in 0..fields {
+                let a = am[r * fields + f] as usize;
+                row[f * order + a] += d[r] * params[self.w + f];
+            }
+        }
+    }
+}
