@@ -731,9 +731,9 @@ impl<T: Real> Sac<T> {
         self.head.sample(&self.actor, &batch.obs, b, &eps, &mut s1);
         let mean = |v: &mut dyn Iterator<Item = f64>| v.sum::<f64>() / b as f64;
         let entropy = -mean(&mut s1.logp.iter().map(|l| l.to_f64()));
-        let mut with_prior = s1.clone();
-        NoisePrior { bound, target_kl: 0.0 }.apply(&self.head, &mut with_prior);
-        let prior_kl = mean(&mut with_prior.logp.iter().map(|l| l.to_f64()));
+        // s1's log-probabilities are read once, above: they become log pi - log p in place
+        NoisePrior { bound, target_kl: 0.0 }.apply(&self.head, &mut s1);
+        let prior_kl = mean(&mut s1.logp.iter().map(|l| l.to_f64()));
         normals(rng, &mut eps);
         let (mut s2, mut buf, mut y) = (ActorSample::default(), Buffers::default(), Vec::new());
         soft_target(

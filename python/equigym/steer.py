@@ -224,18 +224,8 @@ def sweep(a: argparse.Namespace) -> None:
     space = {
         "job": tune.grid_search(jobs),
         "task": tune.grid_search(a.tasks),
-        "steps": a.steps,
-        "preset": a.preset,
-        "joint_limits": not a.no_joint_limits,
-        "eval_every": a.eval_every,
-        "eval_episodes": a.eval_episodes,
-        "policy": a.policy,
-        "ent_init": a.ent_init,
-        "terminate_on_success": a.terminate_on_success,
-        "noise_aliased": a.noise_aliased,
-        "target_entropy": a.target_entropy,
-        "prior_kl": a.prior_kl,
-        "out_root": str(out),
+        **_trial_settings(a, out),
+        **_run_options(a),
     }
 
     def trainable(config: dict[str, Any]) -> None:
@@ -244,6 +234,32 @@ def sweep(a: argparse.Namespace) -> None:
         _trainable(c)
 
     _fit(a, trainable, space, "steer")
+
+
+def _run_options(a: argparse.Namespace) -> dict[str, Any]:
+    """The run options (``_OPTIONS``) a command line asks for: its recipe's (``dsrl`` where the
+    command has none), with its flags on top (a switch turns an option on, a value replaces)."""
+    options = dict(RECIPES[getattr(a, "recipe", "dsrl")])
+    for flag in ("terminate_on_success", "noise_aliased"):
+        options[flag] = options.get(flag, False) or getattr(a, flag)
+    for opt in _VALUED:
+        if getattr(a, opt) is not None:
+            options[opt] = getattr(a, opt)
+    return options
+
+
+def _trial_settings(a: argparse.Namespace, out: Path) -> dict[str, Any]:
+    """What every trial of a sweep or a screen shares: budget, evaluation, policy and output root."""
+    return {
+        "steps": a.steps,
+        "preset": a.preset,
+        "joint_limits": not a.no_joint_limits,
+        "eval_every": a.eval_every,
+        "eval_episodes": a.eval_episodes,
+        "policy": a.policy,
+        "ent_init": a.ent_init,
+        "out_root": str(out),
+    }
 
 
 def _fit(a: argparse.Namespace, trainable: Any, space: dict[str, Any], name: str, scheduler: Any = None) -> Any:
@@ -339,12 +355,7 @@ def screen(a: argparse.Namespace) -> None:
         raise SystemExit("the screen needs Ray Tune: pip install 'equigym[sweep]' (or 'ray[tune]')") from e
     out = Path(a.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    base = dict(RECIPES[a.recipe])
-    for flag in ("terminate_on_success", "noise_aliased"):
-        base[flag] = base.get(flag, False) or getattr(a, flag)
-    for opt in _VALUED:
-        if getattr(a, opt) is not None:
-            base[opt] = getattr(a, opt)
+    base = _run_options(a)
     configs = []
     for c in parse_grid(a.grid):
         # the two regularisers exclude each other: the grid's replaces the recipe's
@@ -357,14 +368,7 @@ def screen(a: argparse.Namespace) -> None:
         "agent": "rust",
         "method": a.method,
         "task": a.task,
-        "steps": a.steps,
-        "preset": a.preset,
-        "joint_limits": not a.no_joint_limits,
-        "eval_every": a.eval_every,
-        "eval_episodes": a.eval_episodes,
-        "policy": a.policy,
-        "ent_init": a.ent_init,
-        "out_root": str(out),
+        **_trial_settings(a, out),
     }
 
     def trainable(config: dict[str, Any]) -> None:
@@ -758,7 +762,7 @@ def main(argv: list[str] | None = None) -> None:
     elif a.cmd == "screen":
         screen(a)
     else:
-        recipe = RECIPES[a.recipe]
+        options = _run_options(a)
         s = run(
             a.method,
             a.task,
@@ -774,10 +778,10 @@ def main(argv: list[str] | None = None) -> None:
             policy=a.policy,
             ent_init=a.ent_init,
             horizon=a.horizon,
-            terminate_on_success=a.terminate_on_success or recipe.get("terminate_on_success", False),
-            noise_aliased=a.noise_aliased or recipe.get("noise_aliased", False),
-            target_entropy=a.target_entropy if a.target_entropy is not None else recipe.get("target_entropy"),
-            prior_kl=a.prior_kl if a.prior_kl is not None else recipe.get("prior_kl"),
+            terminate_on_success=options["terminate_on_success"],
+            noise_aliased=options["noise_aliased"],
+            target_entropy=options.get("target_entropy"),
+            prior_kl=options.get("prior_kl"),
             progress=not a.quiet,
         )
         print(json.dumps({k: v for k, v in s.items() if k != "rows"}, default=str))
