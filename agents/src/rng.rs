@@ -16,6 +16,7 @@
 //! | [`Stream::Diagnostics`] | replay sample and actor noise of the learner diagnostics at evaluation `index` |
 //! | [`Stream::InitActionCritics`] | initial weights of the noise-aliased agents' action critics (index 1 and 2) |
 //! | [`Stream::BaseEval`] | the base policy's latent noise in evaluation episode `index` ([`crate::evaluation::evaluate_base`]) |
+//! | [`Stream::Probe`] | the actor's noise for its sampled picks at a probed state (index: episode seed x 1000 + latent step; [`crate::run::critic_probe`]) |
 
 use equigym_envs::rng::{box_muller, box_muller_uniforms};
 use equigym_nn::{ops, Real};
@@ -38,6 +39,7 @@ pub enum Stream {
     Diagnostics = 9,
     InitActionCritics = 10,
     BaseEval = 11,
+    Probe = 12,
 }
 
 /// Domain separator in every key, so that these streams differ from any other ChaCha use.

@@ -242,11 +242,14 @@ pub struct Start {
     /// Latent steps done.
     pub latent_step: usize,
     pub phase: Phase,
+    /// The observation at this point.
+    pub observation: Vec<f64>,
 }
 
 impl Start {
-    fn capture(env: &LatentEnv, tracker: &Tracker, latent_step: usize) -> Result<Self> {
+    fn capture(env: &mut LatentEnv, tracker: &Tracker, latent_step: usize) -> Result<Self> {
         Ok(Self {
+            observation: env.env_mut().observe().to_vec(),
             state: env.env().get_state()?,
             tracker: tracker.clone(),
             steps: env.env().elapsed_steps(),
@@ -418,6 +421,19 @@ pub struct ProbedState {
     pub variance_ratio: Option<f64>,
     /// The best candidate's success on fresh continuations.
     pub best_holdout: Rate,
+    /// Successes of the caller's extra candidates ([`probe_with`]) out of `continuations`, in
+    /// the order it gave them (not part of the statistics above).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub extra_successes: Vec<usize>,
+    /// The observation at the state, as a policy or critic sees it.
+    #[serde(skip)]
+    pub observation: Vec<f64>,
+    /// Every candidate's noise (the M random ones, then the extras), `hold x latent_dim` each.
+    #[serde(skip)]
+    pub candidates: Vec<Vec<f64>>,
+    /// Every candidate's continuations, in the same order.
+    #[serde(skip)]
+    pub continuations: Vec<Vec<Rollout>>,
 }
 
 /// What [`probe`] found.
@@ -501,9 +517,24 @@ pub fn mean_se(xs: &[f64]) -> (f64, f64) {
     (m, (v / n).sqrt())
 }
 
+/// Extra candidate noises at a probed state, from (episode seed, latent step, observation): a
+/// trained actor's picks, say. Each is `hold x latent_dim` long.
+pub type ExtraCandidates<'a> = &'a (dyn Fn(u64, usize, &[f64]) -> Result<Vec<Vec<f64>>> + Sync);
+
 /// Measure how much the next `hold` chunks' noise changes P(success) from states along base
 /// rollouts (see the module documentation). `make_env` builds one latent environment per worker.
 pub fn probe(config: &ProbeConfig, make_env: &(dyn Fn() -> Result<LatentEnv> + Sync)) -> Result<ProbeReport> {
+    probe_with(config, make_env, &|_, _, _| Ok(Vec::new()))
+}
+
+/// [`probe`], with `extra` candidates at every state beside the M random ones, each followed by
+/// K continuations of its own (streams after the random candidates', so the random candidates'
+/// results are [`probe`]'s, bit for bit).
+pub fn probe_with(
+    config: &ProbeConfig,
+    make_env: &(dyn Fn() -> Result<LatentEnv> + Sync),
+    extra: ExtraCandidates,
+) -> Result<ProbeReport> {
     let (m, kc, hold) = (config.candidates.max(2), config.continuations.max(1), config.hold.max(1));
     let last = config.at_latent_steps.iter().copied().max().unwrap_or(0);
     // 1. Base rollouts to the last probe step, saving the probed states.
@@ -531,13 +562,29 @@ pub fn probe(config: &ProbeConfig, make_env: &(dyn Fn() -> Result<LatentEnv> + S
     })?;
     let starts: Vec<(u64, Start)> = found.into_iter().flatten().collect();
 
-    // 2. M candidates x K continuations from every state.
+    // 2. M candidates (and the extras) x K continuations from every state.
     let dim = make_env()?.latent_dim();
-    let candidate = |s: usize, c: usize| -> Vec<f64> {
-        let mut v = vec![0.0; dim * hold];
-        normals(&mut stream(&[CANDIDATE, starts[s].0, starts[s].1.latent_step as u64, c as u64]), 1.0, &mut v);
-        v
-    };
+    let extras: Vec<Vec<Vec<f64>>> =
+        starts.iter().map(|(seed, st)| extra(*seed, st.latent_step, &st.observation)).collect::<Result<_>>()?;
+    if extras.iter().flatten().any(|v| v.len() != dim * hold) {
+        return Err(equigym_envs::EnvError::WrongLength {
+            what: "extra candidate noise".into(),
+            expected: dim * hold,
+            got: extras.iter().flatten().map(Vec::len).find(|&n| n != dim * hold).unwrap_or(0),
+        }
+        .into());
+    }
+    let candidates: Vec<Vec<Vec<f64>>> = (0..starts.len())
+        .map(|s| {
+            let random = (0..m).map(|c| {
+                let mut v = vec![0.0; dim * hold];
+                normals(&mut stream(&[CANDIDATE, starts[s].0, starts[s].1.latent_step as u64, c as u64]), 1.0, &mut v);
+                v
+            });
+            random.chain(extras[s].iter().cloned()).collect()
+        })
+        .collect();
+    let candidate = |s: usize, c: usize| -> &[f64] { &candidates[s][c] };
     let continue_with = |env: &mut LatentEnv, s: usize, cand: &[f64], mut rng: EpisodeRng| -> Result<Rollout> {
         let k0 = starts[s].1.latent_step;
         rollout(env, &starts[s].1, true, |k, _, w| {
@@ -549,18 +596,22 @@ pub fn probe(config: &ProbeConfig, make_env: &(dyn Fn() -> Result<LatentEnv> + S
             }
         })
     };
-    let jobs: Vec<(usize, usize, usize)> =
-        (0..starts.len()).flat_map(|s| (0..m).flat_map(move |c| (0..kc).map(move |r| (s, c, r)))).collect();
+    let jobs: Vec<(usize, usize, usize)> = (0..starts.len())
+        .flat_map(|s| (0..candidates[s].len()).flat_map(move |c| (0..kc).map(move |r| (s, c, r))))
+        .collect();
     let runs = par_jobs(&jobs, make_env, |env, &(s, c, r)| {
         let (seed, st) = &starts[s];
         let rng = stream(&[CONTINUATION, *seed, st.latent_step as u64, c as u64, r as u64]);
-        continue_with(env, s, &candidate(s, c), rng)
+        continue_with(env, s, candidate(s, c), rng)
     })?;
     let mut primitive_steps: usize = runs.iter().map(|r| r.primitive_steps).sum();
-    let mut wins = vec![vec![0usize; m]; starts.len()];
+    let mut continuations: Vec<Vec<Vec<Rollout>>> =
+        candidates.iter().map(|cs| vec![Vec::with_capacity(kc); cs.len()]).collect();
     for (&(s, c, _), r) in jobs.iter().zip(&runs) {
-        wins[s][c] += r.success as usize;
+        continuations[s][c].push(*r);
     }
+    let wins: Vec<Vec<usize>> =
+        continuations.iter().map(|cs| cs.iter().map(|rs| rs.iter().filter(|r| r.success).count()).collect()).collect();
 
     // 3. The best candidate of each state on fresh continuations.
     let best: Vec<usize> = wins.iter().map(|w| (0..m).fold(0, |b, c| if w[c] > w[b] { c } else { b })).collect();
@@ -568,7 +619,7 @@ pub fn probe(config: &ProbeConfig, make_env: &(dyn Fn() -> Result<LatentEnv> + S
     let fresh = par_jobs(&holdout_jobs, make_env, |env, &(s, r)| {
         let (seed, st) = &starts[s];
         let rng = stream(&[HOLDOUT, *seed, st.latent_step as u64, r as u64]);
-        continue_with(env, s, &candidate(s, best[s]), rng)
+        continue_with(env, s, candidate(s, best[s]), rng)
     })?;
     primitive_steps += fresh.iter().map(|r| r.primitive_steps).sum::<usize>();
     let mut fresh_wins = vec![0usize; starts.len()];
@@ -580,19 +631,23 @@ pub fn probe(config: &ProbeConfig, make_env: &(dyn Fn() -> Result<LatentEnv> + S
         .iter()
         .enumerate()
         .map(|(s, (seed, st))| {
-            let total: usize = wins[s].iter().sum();
+            let total: usize = wins[s][..m].iter().sum();
             let mean = total as f64 / (m * kc) as f64;
-            let rates: Vec<f64> = wins[s].iter().map(|&w| w as f64 / kc as f64).collect();
+            let rates: Vec<f64> = wins[s][..m].iter().map(|&w| w as f64 / kc as f64).collect();
             let var = rates.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / (m - 1) as f64;
             let binomial = mean * (1.0 - mean) / kc as f64;
             ProbedState {
                 seed: *seed,
                 latent_step: st.latent_step,
                 phase: st.phase,
-                candidate_successes: wins[s].clone(),
+                candidate_successes: wins[s][..m].to_vec(),
                 mean,
                 variance_ratio: (binomial > 0.0).then(|| var / binomial),
                 best_holdout: Rate::of(fresh_wins[s], kc),
+                extra_successes: wins[s][m..].to_vec(),
+                observation: st.observation.clone(),
+                candidates: candidates[s].clone(),
+                continuations: std::mem::take(&mut continuations[s]),
             }
         })
         .collect();

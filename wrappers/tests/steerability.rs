@@ -4,7 +4,7 @@ use std::sync::Arc;
 
 use equigym_envs::robot::parse_urdf;
 use equigym_envs::{Env, EnvOptions};
-use equigym_wrappers::steerability::{base_rollouts, probe, BaseConfig, ProbeConfig};
+use equigym_wrappers::steerability::{base_rollouts, probe, probe_with, BaseConfig, ProbeConfig};
 use equigym_wrappers::{DiffusionPolicy, LatentEnv, DEFAULT_LATENT_BOUND};
 
 const HORIZON: usize = 48;
@@ -70,4 +70,39 @@ fn a_candidate_held_for_the_whole_episode_decides_it() {
         }
         assert_eq!(s.variance_ratio.is_some(), s.mean > 0.0 && s.mean < 1.0);
     }
+}
+
+#[test]
+fn extra_candidates_are_probed_beside_the_random_ones_without_moving_them() {
+    // A caller's candidates (a trained actor's picks) get continuations of their own; the random
+    // candidates' results stay those of the plain probe, and the state's observation is the one
+    // the caller was given. An extra of the wrong length is refused.
+    let make = maker();
+    let cfg =
+        ProbeConfig { first_seed: 9, starts: 1, at_latent_steps: vec![1], candidates: 2, continuations: 2, hold: 1 };
+    let plain = probe(&cfg, &make).unwrap();
+    let dim = make().unwrap().latent_dim();
+    let seen = std::sync::Mutex::new(Vec::new());
+    let extra = |seed: u64, k: usize, obs: &[f64]| {
+        seen.lock().unwrap().push((seed, k, obs.to_vec()));
+        Ok(vec![vec![0.0; dim], vec![0.5; dim]])
+    };
+    let with = probe_with(&cfg, &make, &extra).unwrap();
+    assert_eq!(
+        serde_json::to_value(&plain.states[0].candidate_successes).unwrap(),
+        serde_json::to_value(&with.states[0].candidate_successes).unwrap()
+    );
+    let s = &with.states[0];
+    assert_eq!(s.extra_successes.len(), 2);
+    assert_eq!(s.candidates.len(), 4);
+    assert_eq!(s.candidates[3], vec![0.5; dim]);
+    assert!(s.continuations.iter().all(|c| c.len() == cfg.continuations));
+    for (c, &k) in s.continuations[2..].iter().zip(&s.extra_successes) {
+        assert_eq!(c.iter().filter(|r| r.success).count(), k);
+    }
+    let seen = seen.into_inner().unwrap();
+    assert_eq!(seen, vec![(s.seed, s.latent_step, s.observation.clone())]);
+    assert!(!s.observation.is_empty());
+    let wrong = |_: u64, _: usize, _: &[f64]| Ok(vec![vec![0.0; dim + 1]]);
+    assert!(probe_with(&cfg, &make, &wrong).is_err());
 }

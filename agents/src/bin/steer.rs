@@ -1,28 +1,83 @@
-//! `steer run`: one Rust steering run without Python.
+//! `steer run`: one Rust steering run without Python; `steer probe`: the critic probe of a run
+//! (`equigym_agents::run::probe`).
 //!
 //! ```text
 //! cargo run --release -p equigym-agents --bin steer -- run --method equi --task lift --seed 0 \
 //!     --steps 16000 --out runs/steer-rust [--threads 1] [--preset cpu|paper] [--no-joint-limits] \
 //!     [--controller joint|cartesian] [--eval-every 2000] [--eval-episodes 50] [--policy FILE] \
 //!     [--ent-init 0.2] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X] [--quiet]
+//! steer probe <the run's options> --report DIR [--starts 8] [--at 2,4,8,12,16,24] [--candidates 6] \
+//!     [--continuations 10] [--actor-samples 2]
 //! ```
-//! Writes `OUT/<task>/<method>/seed<S>/log.csv` (and run.json, summary.json, checkpoint.bin);
-//! started again with the same arguments it resumes from the checkpoint.
+//! `run` writes `OUT/<task>/<method>/seed<S>/log.csv` (and run.json, summary.json,
+//! checkpoint.bin); started again with the same arguments it resumes from the checkpoint.
+//! `probe` loads that checkpoint (the untrained learner when there is none) and writes
+//! `DIR/critic-probe.{json,md}`; `--threads` sets its worker threads.
 
 use equigym_envs::Controller;
 use std::process::ExitCode;
 
+use equigym_agents::run::{critic_probe, CriticProbeConfig};
 use equigym_agents::{run, Method, Preset, RunConfig};
+use equigym_wrappers::steerability::ProbeConfig;
 
 const USAGE: &str =
     "usage: steer run --method {dsrl,equi,approx} --task {lift,stack,square} --seed S --steps N --out DIR \
 [--threads T] [--preset cpu|paper] [--no-joint-limits] [--controller joint|cartesian] [--eval-every N] \
-[--eval-episodes N] [--policy FILE] [--ent-init X] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X | --prior-kl NATS] [--quiet]";
+[--eval-episodes N] [--policy FILE] [--ent-init X] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X | --prior-kl NATS] [--quiet]
+       steer probe <the run's options> --report DIR [--starts N] [--at K,K,..] [--candidates M] [--continuations K] [--actor-samples A]";
+
+/// Episode seeds of the critic probe's states (the steerability probe's: apart from training and
+/// evaluation starts).
+const PROBE_SEED: u64 = 3_100_000;
+
+/// A probe's own options, taken out of the arguments before the run's are parsed.
+struct ProbeArgs {
+    report: std::path::PathBuf,
+    config: CriticProbeConfig,
+}
+
+fn parse_probe(args: &mut Vec<String>) -> Result<ProbeArgs, String> {
+    let mut p = ProbeArgs {
+        report: "runs/critic-probe".into(),
+        config: CriticProbeConfig {
+            probe: ProbeConfig {
+                first_seed: PROBE_SEED,
+                starts: 8,
+                at_latent_steps: vec![2, 4, 8, 12, 16, 24],
+                candidates: 6,
+                continuations: 10,
+                hold: 1,
+            },
+            actor_samples: 2,
+        },
+    };
+    let mut rest = Vec::new();
+    let mut it = std::mem::take(args).into_iter();
+    while let Some(a) = it.next() {
+        let known = ["--report", "--starts", "--at", "--candidates", "--continuations", "--actor-samples"];
+        if !known.contains(&a.as_str()) {
+            rest.push(a);
+            continue;
+        }
+        let v = it.next().ok_or_else(|| format!("{a} needs a value\n{USAGE}"))?;
+        let num =
+            |s: &str| s.trim().parse::<usize>().map_err(|_| format!("{a} takes non-negative integers, got '{v}'"));
+        let c = &mut p.config;
+        match a.as_str() {
+            "--report" => p.report = v.into(),
+            "--starts" => c.probe.starts = num(&v)?,
+            "--at" => c.probe.at_latent_steps = v.split(',').map(num).collect::<Result<_, _>>()?,
+            "--candidates" => c.probe.candidates = num(&v)?,
+            "--continuations" => c.probe.continuations = num(&v)?,
+            _ => c.actor_samples = num(&v)?,
+        }
+    }
+    *args = rest;
+    Ok(p)
+}
 
 fn parse(args: &[String]) -> Result<RunConfig, String> {
-    if args.first().map(String::as_str) != Some("run") {
-        return Err(USAGE.into());
-    }
     let mut method = None;
     let mut task = "lift".to_string();
     let mut seed = 0u64;
@@ -84,35 +139,62 @@ fn parse(args: &[String]) -> Result<RunConfig, String> {
 }
 
 fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let cfg = match parse(&args) {
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let parsed = match args.first().map(String::as_str) {
+        Some("run") => parse(&args).map(|c| (c, None)),
+        Some("probe") => parse_probe(&mut args).and_then(|p| parse(&args).map(|c| (c, Some(p)))),
+        _ => Err(USAGE.to_string()),
+    };
+    let (cfg, probe) = match parsed {
         Ok(c) => c,
         Err(e) => {
             eprintln!("{e}");
             return ExitCode::from(2);
         }
     };
-    match run(&cfg) {
-        Ok(s) => {
-            println!(
-                "{}: {} env steps, {} gradient steps, {:.1} s (collecting {:.1} s, training {:.1} s, \
-                 evaluating {:.1} s over {} env steps), final success {}, params {:016x}",
-                s.run_dir.display(),
-                s.env_steps,
-                s.grad_steps,
-                s.seconds,
-                s.time.rollout,
-                s.time.train,
-                s.time.eval,
-                s.eval_env_steps,
-                s.rows.last().map_or("-".into(), |r| r.success_rate.to_string()),
-                s.params_hash
-            );
-            ExitCode::SUCCESS
-        }
+    let done = match probe {
+        None => run(&cfg).map(|s| print_summary(&s)),
+        Some(p) => probe_run(&cfg, &p, &args),
+    };
+    match done {
+        Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e}");
             ExitCode::FAILURE
         }
     }
+}
+
+fn probe_run(cfg: &RunConfig, p: &ProbeArgs, args: &[String]) -> equigym_agents::Result<()> {
+    if cfg.threads > 0 {
+        // (fails only when a pool exists already, which then serves)
+        let _ = rayon::ThreadPoolBuilder::new().num_threads(cfg.threads).build_global();
+    }
+    let report = critic_probe(cfg, &p.config)?;
+    let io = |e: std::io::Error| equigym_agents::Error::InvalidOption(format!("{}: {e}", p.report.display()));
+    std::fs::create_dir_all(&p.report).map_err(io)?;
+    let json =
+        serde_json::to_string_pretty(&report).map_err(|e| equigym_agents::Error::InvalidOption(e.to_string()))?;
+    std::fs::write(p.report.join("critic-probe.json"), json + "\n").map_err(io)?;
+    let command = format!("target/release/steer probe {} --report {}", args[1..].join(" "), p.report.display());
+    std::fs::write(p.report.join("critic-probe.md"), report.markdown(&command)).map_err(io)?;
+    println!("{}", p.report.join("critic-probe.md").display());
+    Ok(())
+}
+
+fn print_summary(s: &equigym_agents::RunSummary) {
+    println!(
+        "{}: {} env steps, {} gradient steps, {:.1} s (collecting {:.1} s, training {:.1} s, \
+         evaluating {:.1} s over {} env steps), final success {}, params {:016x}",
+        s.run_dir.display(),
+        s.env_steps,
+        s.grad_steps,
+        s.seconds,
+        s.time.rollout,
+        s.time.train,
+        s.time.eval,
+        s.eval_env_steps,
+        s.rows.last().map_or("-".into(), |r| r.success_rate.to_string()),
+        s.params_hash
+    );
 }

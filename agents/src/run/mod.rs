@@ -38,6 +38,7 @@
 
 mod config;
 mod files;
+pub mod probe;
 mod state;
 
 use std::path::PathBuf;
@@ -53,6 +54,7 @@ pub use config::{
     Preset, RunConfig, DEFAULT_POLICY_DIR, EVAL_EPISODES, EVAL_EVERY, GAMMA, GAMMA_SQUARE, LEARNING_RATE,
     MEAN_Q_SAMPLE, TARGET_ENTROPY, TAU,
 };
+pub use probe::{critic_probe, CriticProbeConfig, CriticProbeReport};
 pub use state::CHECKPOINT_FORMAT;
 
 use crate::error::{io_err, Error, Result};
@@ -333,6 +335,11 @@ impl Runner {
 }
 /// A latent environment as the run configures it.
 pub fn make_env(cfg: &RunConfig, policy: &Arc<DiffusionPolicy>) -> Result<LatentEnv> {
+    Ok(latent_env(cfg, policy)?)
+}
+
+/// [`make_env`], with the environment layer's error.
+fn latent_env(cfg: &RunConfig, policy: &Arc<DiffusionPolicy>) -> equigym_wrappers::Result<LatentEnv> {
     let mut ec = EnvConfig::new(&cfg.task);
     ec.physics.joint_limits = cfg.joint_limits;
     if let Some(c) = cfg.controller {
@@ -341,7 +348,7 @@ pub fn make_env(cfg: &RunConfig, policy: &Arc<DiffusionPolicy>) -> Result<Latent
     ec.horizon = cfg.horizon;
     ec.task_options.variant = cfg.variant.clone();
     let env = Env::new(ec)?;
-    Ok(LatentEnv::new(env, policy.clone(), DEFAULT_LATENT_BOUND, policy.default_ddim_steps)?)
+    LatentEnv::new(env, policy.clone(), DEFAULT_LATENT_BOUND, policy.default_ddim_steps)
 }
 
 /// `n` latent environments as the run configures them, batched on `cfg.threads` threads. The

@@ -128,26 +128,26 @@ impl Runner {
             let _ = std::fs::remove_file(dir.join("log.csv"));
             return Ok(());
         }
-        let bytes = std::fs::read(&ckpt_path).map_err(|e| io_err(&ckpt_path, e))?;
-        let corrupt = |e: postcard::Error| Error::Checkpoint {
-            path: ckpt_path.display().to_string(),
-            reason: format!("corrupt ({e})"),
-        };
-        let header: CheckpointHeader = postcard::from_bytes(&bytes).map_err(corrupt)?;
-        if header.format != CHECKPOINT_FORMAT {
-            return Err(Error::Checkpoint {
-                path: ckpt_path.display().to_string(),
-                reason: format!(
-                    "format '{}' is not '{CHECKPOINT_FORMAT}' (written by another equigym version); use another --out or delete it",
-                    header.format
-                ),
-            });
-        }
-        let c: Checkpoint = postcard::from_bytes(&bytes).map_err(corrupt)?;
+        let c = read_checkpoint(&ckpt_path)?;
         self.restore(c, &ckpt_path)?;
         self.write_log(dir)?;
         self.load_cost_record(dir);
         Ok(())
+    }
+
+    /// Load only the learner (networks, optimisers, entropy coefficient) from `dir`'s
+    /// checkpoint, leaving environments, replay and files alone; the env steps it was saved at,
+    /// or `None` (and the fresh learner) when `dir` has no checkpoint.
+    pub(super) fn load_learner(&mut self, dir: &Path) -> Result<Option<u64>> {
+        let path = dir.join(CHECKPOINT_FILE);
+        if !path.exists() {
+            return Ok(None);
+        }
+        let c = read_checkpoint(&path)?;
+        self.check_fingerprint(&c, &path)?;
+        let bad = |reason: String| Error::Checkpoint { path: path.display().to_string(), reason };
+        self.sac.set_state(c.learner).map_err(bad)?;
+        Ok(Some(c.progress.num_timesteps * self.policy.chunk_len as u64))
     }
 
     /// Write the checkpoint (atomically).
@@ -168,15 +168,20 @@ impl Runner {
         })
     }
 
+    fn check_fingerprint(&self, c: &Checkpoint, path: &Path) -> Result<()> {
+        if c.fingerprint != self.cfg.fingerprint() {
+            return Err(Error::Checkpoint {
+                path: path.display().to_string(),
+                reason: format!("written by another configuration ({}); use another --out or delete it", c.fingerprint),
+            });
+        }
+        Ok(())
+    }
+
     fn restore(&mut self, c: Checkpoint, path: &Path) -> Result<()> {
         // (the format was checked on the header, before the whole checkpoint was decoded)
         let bad = |reason: String| Error::Checkpoint { path: path.display().to_string(), reason };
-        if c.fingerprint != self.cfg.fingerprint() {
-            return Err(bad(format!(
-                "written by another configuration ({}); use another --out or delete it",
-                c.fingerprint
-            )));
-        }
+        self.check_fingerprint(&c, path)?;
         let n = self.envs.num_envs();
         if c.envs.len() != n {
             return Err(bad(format!("{} environments saved, {n} needed", c.envs.len())));
@@ -190,4 +195,22 @@ impl Runner {
         self.progress = c.progress;
         Ok(())
     }
+}
+
+/// Decode a checkpoint file, its format checked on the header first.
+fn read_checkpoint(path: &Path) -> Result<Checkpoint> {
+    let bytes = std::fs::read(path).map_err(|e| io_err(path, e))?;
+    let corrupt =
+        |e: postcard::Error| Error::Checkpoint { path: path.display().to_string(), reason: format!("corrupt ({e})") };
+    let header: CheckpointHeader = postcard::from_bytes(&bytes).map_err(corrupt)?;
+    if header.format != CHECKPOINT_FORMAT {
+        return Err(Error::Checkpoint {
+            path: path.display().to_string(),
+            reason: format!(
+                "format '{}' is not '{CHECKPOINT_FORMAT}' (written by another equigym version); use another --out or delete it",
+                header.format
+            ),
+        });
+    }
+    postcard::from_bytes(&bytes).map_err(corrupt)
 }
