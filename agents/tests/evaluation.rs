@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use equigym_agents::evaluation::{evaluate_base, EVAL_SEED};
 use equigym_agents::rng::{Rng, Stream};
-use equigym_agents::run::make_env;
+use equigym_agents::run::{evaluate_checkpoint, make_env, ActorNoise};
 use equigym_agents::{Error, Method, RunConfig};
 use equigym_wrappers::DiffusionPolicy;
 
@@ -20,12 +20,15 @@ fn config(threads: usize) -> RunConfig {
 
 /// Episode k by hand, one latent step at a time.
 fn by_hand(cfg: &RunConfig, scale: f64, k: u64) -> bool {
+    by_hand_from(cfg, scale, Rng::new(cfg.seed, Stream::BaseEval, k), k)
+}
+
+fn by_hand_from(cfg: &RunConfig, scale: f64, mut rng: Rng, k: u64) -> bool {
     let policy = Arc::new(
         DiffusionPolicy::load(equigym_agents::run::DEFAULT_POLICY_DIR.to_owned() + "/lift.safetensors").unwrap(),
     );
     let mut env = make_env(cfg, &policy).unwrap();
     env.reset(EVAL_SEED + k).unwrap();
-    let mut rng = Rng::new(cfg.seed, Stream::BaseEval, k);
     loop {
         let w: Vec<f64> =
             (0..env.latent_dim()).map(|_| (scale * rng.normal()).clamp(-env.bound(), env.bound())).collect();
@@ -72,4 +75,30 @@ fn bad_scales_and_tasks_are_typed_errors() {
     let mut none = config(1);
     none.eval_episodes = 0;
     assert!(matches!(evaluate_base(&none, 1.0), Err(Error::InvalidOption(_))));
+}
+
+#[test]
+fn a_checkpoint_is_evaluated_on_the_same_pinned_starts() {
+    // No checkpoint under this directory: the untrained learner. Best of one candidate is the
+    // base policy on the evaluation's own noise stream (episode k: Stream::Eval, key k).
+    let dir = std::env::temp_dir().join(format!("equigym-eval-ckpt-{}", std::process::id()));
+    let mut cfg = config(1);
+    cfg.out = dir.clone();
+    let (trained, one) = evaluate_checkpoint(&cfg, ActorNoise::BestOf(1), None).unwrap();
+    assert_eq!(trained, None);
+    assert_eq!(one.successes.len(), 8);
+    for k in [0u64, 5] {
+        let rng = Rng::new(cfg.seed, Stream::Eval, k);
+        assert_eq!(one.successes[k as usize], by_hand_from(&cfg, 1.0, rng, k), "episode {k}");
+    }
+    // Fewer episodes are the first ones of the same starts; threads change nothing.
+    let (_, three) = evaluate_checkpoint(&cfg, ActorNoise::BestOf(1), Some(3)).unwrap();
+    assert_eq!(three.successes, one.successes[..3]);
+    let mut two_threads = cfg.clone();
+    two_threads.threads = 2;
+    for noise in [ActorNoise::Mean, ActorNoise::BestOf(4)] {
+        let a = evaluate_checkpoint(&cfg, noise, Some(4)).unwrap();
+        assert_eq!(a, evaluate_checkpoint(&two_threads, noise, Some(4)).unwrap(), "{noise:?}");
+    }
+    let _ = std::fs::remove_dir_all(dir);
 }

@@ -323,6 +323,7 @@ def steer_run(
     noise_aliased: bool = False,
     target_entropy: float | None = None,
     prior_kl: float | None = None,
+    reward_scale: float | None = None,
     progress: bool = False,
     stop_after_evals: int | None = None,
 ) -> dict[str, Any]: ...

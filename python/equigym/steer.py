@@ -80,6 +80,7 @@ def run(
     noise_aliased: bool = False,
     target_entropy: float | None = None,
     prior_kl: float | None = None,
+    reward_scale: float | None = None,
     progress: bool = True,
 ) -> dict[str, Any]:
     """One Rust steering run (see the module docs); returns its summary (``run_dir``, ``rows``,
@@ -104,6 +105,7 @@ def run(
         noise_aliased=noise_aliased,
         target_entropy=target_entropy,
         prior_kl=prior_kl,
+        reward_scale=reward_scale,
         progress=progress,
     )
 
@@ -137,6 +139,7 @@ def _trainable(config: dict[str, Any]) -> None:
                 noise_aliased=c.get("noise_aliased", False),
                 target_entropy=c.get("target_entropy"),
                 prior_kl=c.get("prior_kl"),
+                reward_scale=c.get("reward_scale"),
                 progress=False,
             )
             rows = [tuple(r) for r in s["rows"]]
@@ -212,8 +215,10 @@ def _write_sweep_record(path: Path, invocations: list[dict[str, Any]], out: Path
 
 
 def sweep(a: argparse.Namespace) -> None:
-    if (a.noise_aliased or a.target_entropy is not None or a.prior_kl is not None) and a.sb3:
-        raise SystemExit("--noise-aliased, --target-entropy and --prior-kl are Rust-agent options; drop --sb3 or them")
+    if (a.noise_aliased or any(getattr(a, o) is not None for o in _VALUED)) and a.sb3:
+        raise SystemExit(
+            "--noise-aliased, --target-entropy, --prior-kl and --reward-scale are Rust-agent options; drop --sb3 or them"
+        )
     try:
         from ray import tune
     except ImportError as e:  # pragma: no cover
@@ -513,8 +518,8 @@ CONTROL_SCALES = (1.0, 0.5, 0.0)
 #: run.json's evaluation settings when it does not name them (the runner's defaults).
 _DEFAULT_EVAL = {"eval_every": 2000, "eval_episodes": 50}
 #: The run options that ``run.json`` records when set: switches, then options with a value.
-_OPTIONS = ("terminate_on_success", "noise_aliased", "target_entropy", "prior_kl")
-_VALUED = ("target_entropy", "prior_kl")
+_OPTIONS = ("terminate_on_success", "noise_aliased", "target_entropy", "prior_kl", "reward_scale")
+_VALUED = ("target_entropy", "prior_kl", "reward_scale")
 
 
 def _read_run(d: Path) -> dict[str, Any]:
@@ -735,6 +740,12 @@ def main(argv: list[str] | None = None) -> None:
             "the target entropy (Rust agents)",
         )
         s.add_argument(
+            "--reward-scale",
+            type=float,
+            default=None,
+            help="multiply the rewards the learner stores by this factor (default 1; evaluation unchanged; Rust agents)",
+        )
+        s.add_argument(
             "--ent-init", type=float, default=None, help="initial entropy coefficient (default: the preset's)"
         )
     r = sub.add_parser("report")
@@ -782,6 +793,7 @@ def main(argv: list[str] | None = None) -> None:
             noise_aliased=options["noise_aliased"],
             target_entropy=options.get("target_entropy"),
             prior_kl=options.get("prior_kl"),
+            reward_scale=options.get("reward_scale"),
             progress=not a.quiet,
         )
         print(json.dumps({k: v for k, v in s.items() if k != "rows"}, default=str))

@@ -8,24 +8,28 @@
 //!     [--ent-init 0.2] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X] [--quiet]
 //! steer probe <the run's options> --report DIR [--starts 8] [--at 2,4,8,12,16,24] [--candidates 6] \
 //!     [--continuations 10] [--actor-samples 2]
+//! steer eval <the run's options> [--actor mean|sampled|best-of-N] [--episodes N]
 //! ```
 //! `run` writes `OUT/<task>/<method>/seed<S>/log.csv` (and run.json, summary.json,
 //! checkpoint.bin); started again with the same arguments it resumes from the checkpoint.
 //! `probe` loads that checkpoint (the untrained learner when there is none) and writes
-//! `DIR/critic-probe.{json,md}`; `--threads` sets its worker threads.
+//! `DIR/critic-probe.{json,md}`; `--threads` sets its worker threads. `eval` evaluates that
+//! checkpoint's actor (its mean noise by default, or sampled) on the run's `--eval-episodes`
+//! pinned starts and prints one JSON line with the rate and its Wilson 95 % interval.
 
 use equigym_envs::Controller;
 use std::process::ExitCode;
 
-use equigym_agents::run::{critic_probe, CriticProbeConfig};
+use equigym_agents::run::{critic_probe, evaluate_checkpoint, ActorNoise, CriticProbeConfig};
 use equigym_agents::{run, Method, Preset, RunConfig};
-use equigym_wrappers::steerability::ProbeConfig;
+use equigym_wrappers::steerability::{ProbeConfig, Rate};
 
 const USAGE: &str =
     "usage: steer run --method {dsrl,equi,approx} --task {lift,stack,square} --seed S --steps N --out DIR \
 [--threads T] [--preset cpu|paper] [--no-joint-limits] [--controller joint|cartesian] [--eval-every N] \
-[--eval-episodes N] [--policy FILE] [--ent-init X] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X | --prior-kl NATS] [--quiet]
-       steer probe <the run's options> --report DIR [--starts N] [--at K,K,..] [--candidates M] [--continuations K] [--actor-samples A]";
+[--eval-episodes N] [--policy FILE] [--ent-init X] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X | --prior-kl NATS] [--reward-scale X] [--quiet]
+       steer probe <the run's options> --report DIR [--starts N] [--at K,K,..] [--candidates M] [--continuations K] [--actor-samples A]
+       steer eval <the run's options> [--actor mean|sampled|best-of-N] [--episodes N]";
 
 /// Episode seeds of the critic probe's states (the steerability probe's: apart from training and
 /// evaluation starts).
@@ -129,6 +133,10 @@ fn parse(args: &[String]) -> Result<RunConfig, String> {
             "--prior-kl" => {
                 cfg.prior_kl = Some(v.parse::<f64>().map_err(|_| format!("--prior-kl takes a number, got '{v}'"))?)
             }
+            "--reward-scale" => {
+                cfg.reward_scale =
+                    Some(v.parse::<f64>().map_err(|_| format!("--reward-scale takes a number, got '{v}'"))?)
+            }
             "--quiet" => cfg.progress = false,
             "--terminate-on-success" => cfg.terminate_on_success = true,
             "--noise-aliased" => cfg.noise_aliased = true,
@@ -138,23 +146,56 @@ fn parse(args: &[String]) -> Result<RunConfig, String> {
     Ok(cfg)
 }
 
+/// What a command line asks for beside the run it names.
+enum Job {
+    Run,
+    Probe(ProbeArgs),
+    Eval(ActorNoise, Option<usize>),
+}
+
+/// `--actor mean|sampled|best-of-N` and `--episodes N`, taken out of the arguments before the
+/// run's are parsed.
+fn parse_eval(args: &mut Vec<String>) -> Result<(ActorNoise, Option<usize>), String> {
+    let mut episodes = None;
+    if let Some(i) = args.iter().position(|a| a == "--episodes") {
+        let v = args.get(i + 1).cloned().unwrap_or_default();
+        episodes = Some(v.parse().map_err(|_| format!("--episodes takes a count, got '{v}'"))?);
+        args.drain(i..(i + 2).min(args.len()));
+    }
+    let mut noise = ActorNoise::Mean;
+    if let Some(i) = args.iter().position(|a| a == "--actor") {
+        noise = match args.get(i + 1).map(String::as_str) {
+            Some("mean") => ActorNoise::Mean,
+            Some("sampled") => ActorNoise::Sampled,
+            Some(b) if b.starts_with("best-of-") => {
+                ActorNoise::BestOf(b[8..].parse().map_err(|_| format!("--actor best-of-N takes a count, got '{b}'"))?)
+            }
+            other => return Err(format!("--actor takes mean, sampled or best-of-N, got {other:?}\n{USAGE}")),
+        };
+        args.drain(i..i + 2);
+    }
+    Ok((noise, episodes))
+}
+
 fn main() -> ExitCode {
     let mut args: Vec<String> = std::env::args().skip(1).collect();
     let parsed = match args.first().map(String::as_str) {
-        Some("run") => parse(&args).map(|c| (c, None)),
-        Some("probe") => parse_probe(&mut args).and_then(|p| parse(&args).map(|c| (c, Some(p)))),
+        Some("run") => parse(&args).map(|c| (c, Job::Run)),
+        Some("probe") => parse_probe(&mut args).and_then(|p| parse(&args).map(|c| (c, Job::Probe(p)))),
+        Some("eval") => parse_eval(&mut args).and_then(|(n, e)| parse(&args).map(|c| (c, Job::Eval(n, e)))),
         _ => Err(USAGE.to_string()),
     };
-    let (cfg, probe) = match parsed {
+    let (cfg, job) = match parsed {
         Ok(c) => c,
         Err(e) => {
             eprintln!("{e}");
             return ExitCode::from(2);
         }
     };
-    let done = match probe {
-        None => run(&cfg).map(|s| print_summary(&s)),
-        Some(p) => probe_run(&cfg, &p, &args),
+    let done = match job {
+        Job::Run => run(&cfg).map(|s| print_summary(&s)),
+        Job::Probe(p) => probe_run(&cfg, &p, &args),
+        Job::Eval(noise, episodes) => eval_run(&cfg, noise, episodes),
     };
     match done {
         Ok(()) => ExitCode::SUCCESS,
@@ -179,6 +220,30 @@ fn probe_run(cfg: &RunConfig, p: &ProbeArgs, args: &[String]) -> equigym_agents:
     let command = format!("target/release/steer probe {} --report {}", args[1..].join(" "), p.report.display());
     std::fs::write(p.report.join("critic-probe.md"), report.markdown(&command)).map_err(io)?;
     println!("{}", p.report.join("critic-probe.md").display());
+    Ok(())
+}
+
+fn eval_run(cfg: &RunConfig, noise: ActorNoise, episodes: Option<usize>) -> equigym_agents::Result<()> {
+    if cfg.threads > 0 {
+        let _ = rayon::ThreadPoolBuilder::new().num_threads(cfg.threads).build_global();
+    }
+    let (trained, episodes) = evaluate_checkpoint(cfg, noise, episodes)?;
+    let wins = episodes.successes.iter().filter(|s| **s).count();
+    let rate = Rate::of(wins, episodes.successes.len());
+    let line = serde_json::json!({
+        "run_dir": cfg.run_dir(),
+        "trained_env_steps": trained,
+        "actor": match noise {
+            ActorNoise::Mean => "mean".to_string(),
+            ActorNoise::Sampled => "sampled".to_string(),
+            ActorNoise::BestOf(n) => format!("best-of-{n}"),
+        },
+        "successes": rate.successes,
+        "episodes": rate.n,
+        "rate": rate.rate,
+        "wilson95": [rate.low, rate.high],
+    });
+    println!("{line}");
     Ok(())
 }
 

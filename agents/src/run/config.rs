@@ -117,6 +117,12 @@ pub struct RunConfig {
     /// Regularise the actor towards the diffusion policy's own noise `N(0, I)` with this KL
     /// budget in nats ([`crate::sac::NoisePrior`]) instead of towards a target entropy.
     pub prior_kl: Option<f64>,
+    /// Multiply every reward the learner stores by this factor (default 1: the latent MDP's
+    /// sum of `success - 1` over the chunk). The returns of a failing episode reach a few
+    /// hundred, which a small critic trained with Adam approaches only slowly; a smaller scale
+    /// brings the values within its reach without changing which noise is best. Evaluation is
+    /// unchanged.
+    pub reward_scale: Option<f64>,
     /// Print a line per evaluation to stderr.
     pub progress: bool,
     /// Stop (as if killed) right after the checkpoint of this many evaluations (tests).
@@ -145,6 +151,7 @@ impl RunConfig {
             noise_aliased: false,
             target_entropy: None,
             prior_kl: None,
+            reward_scale: None,
             progress: false,
             stop_after_evals: None,
         })
@@ -198,6 +205,9 @@ impl RunConfig {
         if let Some(k) = self.prior_kl {
             later.push_str(&format!("|prior_kl={k:?}"));
         }
+        if let Some(k) = self.reward_scale {
+            later.push_str(&format!("|reward_scale={k:?}"));
+        }
         if let Some(v) = &self.variant {
             later.push_str(&format!("|variant={v}"));
         }
@@ -239,6 +249,11 @@ impl RunConfig {
             }
             if self.target_entropy.is_some() {
                 return bad("a prior KL budget replaces the target entropy: give one of them".into());
+            }
+        }
+        if let Some(k) = self.reward_scale {
+            if !(k.is_finite() && k > 0.0) {
+                return bad(format!("the reward scale must be a positive number, got {k}"));
             }
         }
         let ent = self.ent_init.unwrap_or(p.ent_init);

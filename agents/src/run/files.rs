@@ -105,6 +105,7 @@ impl Runner {
             noise_aliased: cfg.noise_aliased,
             target_entropy: cfg.target_entropy,
             prior_kl: cfg.prior_kl,
+            reward_scale: cfg.reward_scale,
             variant: cfg.variant.as_deref(),
             eval_every: (cfg.eval_every != EVAL_EVERY).then_some(cfg.eval_every),
             eval_episodes: (cfg.eval_episodes != EVAL_EPISODES).then_some(cfg.eval_episodes),
@@ -153,6 +154,8 @@ struct RunMeta<'a> {
     target_entropy: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     prior_kl: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    reward_scale: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     variant: Option<&'a str>,
     /// Evaluation settings and the controller, when not the defaults.
@@ -217,6 +220,7 @@ mod tests {
             noise_aliased: false,
             target_entropy: None,
             prior_kl: None,
+            reward_scale: None,
             variant: None,
             eval_every: None,
             eval_episodes: None,

@@ -55,10 +55,11 @@ pub use config::{
     MEAN_Q_SAMPLE, TARGET_ENTROPY, TAU,
 };
 pub use probe::{critic_probe, CriticProbeConfig, CriticProbeReport};
+// (evaluate_checkpoint and ActorNoise are defined below.)
 pub use state::CHECKPOINT_FORMAT;
 
 use crate::error::{io_err, Error, Result};
-use crate::evaluation::run_episodes;
+use crate::evaluation::{run_episodes, Episodes};
 use crate::models::{Arch, Models, GROUP_ORDER};
 use crate::replay::{Batch, Replay, DEFAULT_CAPACITY};
 use crate::rng::{Rng, Stream};
@@ -236,7 +237,8 @@ impl Runner {
                 _ => Vec::new(),
             };
             let (o, a) = (&obs[i * od..(i + 1) * od], &scaled[i * ad..(i + 1) * ad]);
-            self.progress.replay.push_with_chunk(o, a, &chunk, r.reward as f32, &next, terminal);
+            let reward = r.reward * self.cfg.reward_scale.unwrap_or(1.0);
+            self.progress.replay.push_with_chunk(o, a, &chunk, reward as f32, &next, terminal);
             if terminal || r.truncated {
                 seeds[i] = self.progress.streams.env_seeds.next_u64();
                 ended[i] = true;
@@ -279,27 +281,50 @@ impl Runner {
 
     /// Success rate of the stochastic actor over the evaluation episodes.
     fn evaluate(&mut self) -> Result<f64> {
-        let episodes = self.cfg.eval_episodes;
+        let result = self.evaluate_actor(ActorNoise::Sampled, self.cfg.eval_episodes)?;
+        self.eval_env_steps += result.env_steps;
+        Ok(result.rate())
+    }
+
+    /// The actor on the pinned evaluation starts: sampled (the run's evaluations: episode k
+    /// draws from its own [`Stream::Eval`] stream) or its mean noise (zero reparameterisation
+    /// noise, SB3's `deterministic=True`).
+    fn evaluate_actor(&mut self, noise: ActorNoise, episodes: usize) -> Result<Episodes> {
         let eval_index = self.progress.rows.len() as u64;
         let mut rngs: Vec<Rng> =
             (0..episodes as u64).map(|k| Rng::new(self.cfg.seed, Stream::Eval, (eval_index << 32) | k)).collect();
         let ad = self.sac.latent_dim();
         let sac = &mut self.sac;
+        let od = self.obs_dim;
         let mut choose = |idx: &[usize], obs: &[f32], out: &mut Vec<f64>| {
+            if let ActorNoise::BestOf(n) = noise {
+                let n = n.max(1);
+                for (j, &k) in idx.iter().enumerate() {
+                    let mut w = vec![0.0f32; n * ad];
+                    normals(&mut rngs[k], &mut w);
+                    let bound = DEFAULT_LATENT_BOUND as f32;
+                    w.iter_mut().for_each(|v| *v = v.clamp(-bound, bound) / bound);
+                    let o: Vec<f32> = (0..n).flat_map(|_| obs[j * od..(j + 1) * od].iter().copied()).collect();
+                    let q = sac.min_q(&o, &w, n);
+                    let best = (0..n).fold(0, |b, i| if q[i] > q[b] { i } else { b });
+                    out.extend(w[best * ad..(best + 1) * ad].iter().map(|v| *v as f64 * DEFAULT_LATENT_BOUND));
+                }
+                return;
+            }
             let mut eps = vec![0.0f32; idx.len() * ad];
-            for (j, &k) in idx.iter().enumerate() {
-                normals(&mut rngs[k], &mut eps[j * ad..(j + 1) * ad]);
+            if noise == ActorNoise::Sampled {
+                for (j, &k) in idx.iter().enumerate() {
+                    normals(&mut rngs[k], &mut eps[j * ad..(j + 1) * ad]);
+                }
             }
             let a = sac.act(obs, idx.len(), &eps);
             out.extend(a.iter().map(|v| *v as f64 * DEFAULT_LATENT_BOUND));
         };
         let envs = match &mut self.eval_envs {
-            Some(envs) => envs,
-            none => none.insert(make_batch(&self.cfg, &self.policy, episodes)?),
+            Some(envs) if envs.num_envs() == episodes => envs,
+            slot => slot.insert(make_batch(&self.cfg, &self.policy, episodes)?),
         };
-        let result = run_episodes(envs, &mut choose)?;
-        self.eval_env_steps += result.env_steps;
-        Ok(result.rate())
+        run_episodes(envs, &mut choose)
     }
 
     fn mean_q(&mut self) -> f64 {
@@ -364,6 +389,35 @@ pub(crate) fn member_obs(envs: &LatentBatchEnv, i: usize) -> Vec<f32> {
 }
 
 /// Run (or resume, or extend) one steering run; see the module docs.
+/// How the actor's noise is drawn when it is evaluated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ActorNoise {
+    /// Samples of the actor (DSRL's evaluation, and every run's `log.csv`).
+    Sampled,
+    /// The actor's mean (squashed), one noise per observation.
+    Mean,
+    /// The critic as a ranker: `n` fresh candidates from the EDP's own noise N(0, I) (clipped to
+    /// the box), the one of highest min-Q taken. With an uninformative critic this is the base
+    /// policy; the pick's KL to N(0, I) is at most ln n.
+    BestOf(usize),
+}
+
+/// The learner of the run `cfg` names (its checkpoint, as last saved; the untrained learner
+/// when there is none) evaluated on the run's pinned starts: `(env steps it was trained for,
+/// per-episode results)` on `episodes` starts (`None`: the run's `eval_episodes`; episode k
+/// starts from the same seed whatever the count). The sampled actor reproduces the run's
+/// evaluation only for the first one (each later evaluation draws from its own streams).
+pub fn evaluate_checkpoint(
+    cfg: &RunConfig,
+    noise: ActorNoise,
+    episodes: Option<usize>,
+) -> Result<(Option<u64>, Episodes)> {
+    cfg.validate()?;
+    let mut r = Runner::new(cfg)?;
+    let trained = r.load_learner(&cfg.run_dir())?;
+    Ok((trained, r.evaluate_actor(noise, episodes.unwrap_or(cfg.eval_episodes))?))
+}
+
 pub fn run(cfg: &RunConfig) -> Result<RunSummary> {
     cfg.validate()?;
     let started = Instant::now();

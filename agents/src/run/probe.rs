@@ -106,7 +106,30 @@ pub struct CriticProbeReport {
     /// The perfect chooser among the M, re-measured on fresh continuations (the probe's).
     pub best_fresh_gain: MeanSe,
     pub q_actor_mean_excess: MeanSe,
+    /// The critic as a value function across states: each state's mean Q over the random
+    /// noises beside its mean Monte-Carlo return (the base's value, in the learner's units).
+    pub values: ValueFit,
     pub primitive_steps: usize,
+}
+
+/// Mean Q against mean Monte-Carlo return over states: their means, Pearson correlation and the
+/// least-squares slope of Q on the return (1 for a calibrated critic of the base policy).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct ValueFit {
+    pub mean_q: f64,
+    pub mean_return: f64,
+    pub correlation: f64,
+    pub slope: f64,
+}
+
+impl ValueFit {
+    fn of(q: &[f64], g: &[f64]) -> Self {
+        let n = q.len().max(1) as f64;
+        let (mq, mg) = (q.iter().sum::<f64>() / n, g.iter().sum::<f64>() / n);
+        let cov: f64 = q.iter().zip(g).map(|(a, b)| (a - mq) * (b - mg)).sum();
+        let (vq, vg): (f64, f64) = (q.iter().map(|a| (a - mq).powi(2)).sum(), g.iter().map(|b| (b - mg).powi(2)).sum());
+        Self { mean_q: mq, mean_return: mg, correlation: cov / (vq * vg).sqrt(), slope: cov / vg }
+    }
 }
 
 /// Average ranks (ties share their mean rank).
@@ -193,7 +216,8 @@ pub fn critic_probe(cfg: &RunConfig, pc: &CriticProbeConfig) -> Result<CriticPro
     };
     let m = pc.probe.candidates.max(2);
     let gamma = cfg.gamma();
-    let mut states: Vec<ScoredState> = report.states.iter().map(|s| scored(s, m, chunk, gamma)).collect();
+    let mut states: Vec<ScoredState> =
+        report.states.iter().map(|s| scored(s, m, chunk, gamma, cfg.reward_scale.unwrap_or(1.0))).collect();
     for (st, p) in states.iter_mut().zip(&report.states) {
         st.q_trained = score(&mut r.sac, &p.observation, &p.candidates[..m]);
         let actor_q = score(&mut r.sac, &p.observation, &p.candidates[m..m + 1])[0];
@@ -225,18 +249,25 @@ pub fn critic_probe(cfg: &RunConfig, pc: &CriticProbeConfig) -> Result<CriticPro
         actor_samples_gain: of(&|s| Some(s.actor_samples - s.mean)),
         best_fresh_gain: MeanSe::of(report.states.iter().map(|s| s.best_holdout.rate - s.mean)),
         q_actor_mean_excess: of(&|s| Some(s.q_actor_mean_excess)),
+        values: {
+            let avg = |x: &[f64]| x.iter().sum::<f64>() / x.len().max(1) as f64;
+            let q: Vec<f64> = states.iter().map(|s| avg(&s.q_trained)).collect();
+            let g: Vec<f64> = states.iter().map(|s| avg(&s.mc_return)).collect();
+            ValueFit::of(&q, &g)
+        },
         primitive_steps: report.primitive_steps,
         states,
     })
 }
 
 /// The Monte-Carlo side of one state (the critics' fields are filled in after).
-fn scored(p: &ProbedState, m: usize, chunk: usize, gamma: f64) -> ScoredState {
+/// Returns are in the learner's units (times the run's reward scale), so that they read beside Q.
+fn scored(p: &ProbedState, m: usize, chunk: usize, gamma: f64, scale: f64) -> ScoredState {
     let random = &p.continuations[..m];
     let success: Vec<f64> = random.iter().map(|rs| rate(rs)).collect();
     let mc_return = random
         .iter()
-        .map(|rs| rs.iter().map(|r| discounted_return(r, chunk, gamma)).sum::<f64>() / rs.len().max(1) as f64)
+        .map(|rs| scale * rs.iter().map(|r| discounted_return(r, chunk, gamma)).sum::<f64>() / rs.len().max(1) as f64)
         .collect();
     let half = |lo: bool| -> Vec<f64> {
         random
@@ -320,6 +351,13 @@ impl CriticProbeReport {
         md += &format!(
             "| critic's Q of the actor's mean minus its mean Q of the random noises | {} | |\n",
             f(&self.q_actor_mean_excess)
+        );
+        let v = &self.values;
+        md += &format!(
+            "\nAs a value function across states (each state's mean Q over the random noises against its mean MC \
+             return under the base, in the learner's units): mean Q {:.1}, mean return {:.1}, correlation {:+.2}, \
+             slope of Q on the return {:.3} (a calibrated critic of the base: 1).\n",
+            v.mean_q, v.mean_return, v.correlation, v.slope
         );
         md += "\n| seed | latent step | phase | MC success per noise | Q (trained) | rho | critic pick | actor mean | actor samples |\n\
                |---|---:|---|---|---|---:|---:|---:|---:|\n";
