@@ -174,17 +174,30 @@ pub fn measure(config: &BreakingConfig) -> Result<BreakingReport> {
     let sym = TaskSymmetry::for_env(&env, group, 1)?;
     let elements = group.elements()?;
 
-    // Expert demonstrations with every visited state.
+    let demos = record_demos(&mut env, config)?;
+    let invariance = invariance_rows(&mut env, &sym, &elements, &demos, config)?;
+    let replay = replay_rows(&mut env, &sym, &elements, &demos, config)?;
+    Ok(BreakingReport {
+        config: config.clone(),
+        expert_episodes: demos.len(),
+        expert_successes: demos.iter().filter(|d| d.success).count(),
+        invariance,
+        replay,
+    })
+}
+
+/// Expert demonstrations from seeds `config.seed ..`, with every visited state.
+fn record_demos(env: &mut Env, config: &BreakingConfig) -> Result<Vec<Demo>> {
     let mut demos = Vec::new();
     for k in 0..config.episodes {
         let seed = config.seed + k as u64;
         let mut expert = make_expert(&config.task, ExpertOptions::default())?;
         env.reset(seed)?;
-        expert.reset(&env, seed);
+        expert.reset(env, seed);
         let mut demo = Demo { seed, actions: Vec::new(), states: Vec::new(), success: false };
         for _ in 0..env.horizon() {
             demo.states.push(env.get_state()?);
-            let action = expert.act(&env);
+            let action = expert.act(env);
             demo.actions.push(action);
             if env.step(&action)?.evaluation.success {
                 demo.success = true;
@@ -193,12 +206,21 @@ pub fn measure(config: &BreakingConfig) -> Result<BreakingReport> {
         }
         demos.push(demo);
     }
+    Ok(demos)
+}
 
-    // Transition invariance on sampled (state, action sequence) pairs.
+/// Transition invariance on sampled (state, action sequence) pairs of the demonstrations.
+fn invariance_rows(
+    env: &mut Env,
+    sym: &TaskSymmetry,
+    elements: &[PlanarRotation],
+    demos: &[Demo],
+    config: &BreakingConfig,
+) -> Result<Vec<InvarianceRow>> {
     let mut rng = EpisodeRng::for_use(config.seed, SeedUse::SymmetryProbe);
     let mut sums = vec![[0.0f64; 9]; elements.len()];
     let mut counts = vec![0usize; elements.len()];
-    for demo in &demos {
+    for demo in demos {
         let usable = demo.actions.len().saturating_sub(config.probe_steps - 1);
         if usable == 0 {
             continue;
@@ -212,10 +234,10 @@ pub fn measure(config: &BreakingConfig) -> Result<BreakingReport> {
                 last = Some(env.step(a)?);
             }
             let last = last.expect("probe_steps > 0");
-            let reference = outcome(&mut env, last.reward, last.evaluation.success);
+            let reference = outcome(env, last.reward, last.evaluation.success);
             for (e, g) in elements.iter().enumerate() {
                 env.set_state(&demo.states[t])?;
-                let fit = transform_state(&mut env, g)?;
+                let fit = transform_state(env, g)?;
                 let mut last = None;
                 for a in actions {
                     let mut ga = *a;
@@ -223,7 +245,7 @@ pub fn measure(config: &BreakingConfig) -> Result<BreakingReport> {
                     last = Some(env.step(&ga)?);
                 }
                 let last = last.expect("probe_steps > 0");
-                let rotated = outcome(&mut env, last.reward, last.evaluation.success);
+                let rotated = outcome(env, last.reward, last.evaluation.success);
                 let mut expected = reference.obs.clone();
                 sym.act_observation(g, &mut expected)?;
                 let obs_err = rotated.obs.iter().zip(&expected).map(|(a, b)| (a - b).powi(2)).sum::<f64>().sqrt();
@@ -247,7 +269,7 @@ pub fn measure(config: &BreakingConfig) -> Result<BreakingReport> {
             }
         }
     }
-    let invariance = elements
+    Ok(elements
         .iter()
         .enumerate()
         .map(|(e, g)| {
@@ -267,9 +289,17 @@ pub fn measure(config: &BreakingConfig) -> Result<BreakingReport> {
                 unreachable: s[7] / n,
             }
         })
-        .collect();
+        .collect())
+}
 
-    // Rotated open-loop replay of the successful demonstrations.
+/// Rotated open-loop replay of the successful demonstrations.
+fn replay_rows(
+    env: &mut Env,
+    sym: &TaskSymmetry,
+    elements: &[PlanarRotation],
+    demos: &[Demo],
+    config: &BreakingConfig,
+) -> Result<Vec<ReplayRow>> {
     let mut replay: Vec<ReplayRow> = elements
         .iter()
         .enumerate()
@@ -278,7 +308,7 @@ pub fn measure(config: &BreakingConfig) -> Result<BreakingReport> {
     for demo in demos.iter().filter(|d| d.success) {
         for (e, g) in elements.iter().enumerate() {
             env.reset(demo.seed)?;
-            transform_state(&mut env, g)?;
+            transform_state(env, g)?;
             let last = *demo.actions.last().expect("a successful demo has actions");
             let budget = (demo.actions.len() + config.replay_slack).min(env.horizon());
             let mut success = false;
@@ -294,12 +324,5 @@ pub fn measure(config: &BreakingConfig) -> Result<BreakingReport> {
             replay[e].successes += success as usize;
         }
     }
-
-    Ok(BreakingReport {
-        config: config.clone(),
-        expert_episodes: demos.len(),
-        expert_successes: demos.iter().filter(|d| d.success).count(),
-        invariance,
-        replay,
-    })
+    Ok(replay)
 }

@@ -536,54 +536,12 @@ pub fn probe_with(
     extra: ExtraCandidates,
 ) -> Result<ProbeReport> {
     let (m, kc, hold) = (config.candidates.max(2), config.continuations.max(1), config.hold.max(1));
-    let last = config.at_latent_steps.iter().copied().max().unwrap_or(0);
     // 1. Base rollouts to the last probe step, saving the probed states.
-    let seeds: Vec<u64> = (0..config.starts as u64).map(|i| config.first_seed + i).collect();
-    let found: Vec<Vec<(u64, Start)>> = par_jobs(&seeds, make_env, |env, &seed| {
-        let mut rng = stream(&[PREFIX, seed]);
-        let mut tracker = episode_start(env, seed)?.tracker;
-        let mut out = Vec::new();
-        let mut w = vec![0.0; env.latent_dim()];
-        for k in 0..=last {
-            if config.at_latent_steps.contains(&k) {
-                out.push((seed, Start::capture(env, &tracker, k)?));
-            }
-            normals(&mut rng, 1.0, &mut w);
-            let chunk = env.decode(&w)?;
-            for a in chunk.chunks_exact(equigym_envs::ACTION_DIM) {
-                let r = env.env_mut().step(a)?;
-                tracker.record(env, r.evaluation.success, env.env().elapsed_steps());
-                if r.truncated || r.evaluation.success {
-                    return Ok(out);
-                }
-            }
-        }
-        Ok(out)
-    })?;
-    let starts: Vec<(u64, Start)> = found.into_iter().flatten().collect();
+    let starts = probe_starts(config, make_env)?;
 
     // 2. M candidates (and the extras) x K continuations from every state.
     let dim = make_env()?.latent_dim();
-    let extras: Vec<Vec<Vec<f64>>> =
-        starts.iter().map(|(seed, st)| extra(*seed, st.latent_step, &st.observation)).collect::<Result<_>>()?;
-    if extras.iter().flatten().any(|v| v.len() != dim * hold) {
-        return Err(equigym_envs::EnvError::WrongLength {
-            what: "extra candidate noise".into(),
-            expected: dim * hold,
-            got: extras.iter().flatten().map(Vec::len).find(|&n| n != dim * hold).unwrap_or(0),
-        }
-        .into());
-    }
-    let candidates: Vec<Vec<Vec<f64>>> = (0..starts.len())
-        .map(|s| {
-            let random = (0..m).map(|c| {
-                let mut v = vec![0.0; dim * hold];
-                normals(&mut stream(&[CANDIDATE, starts[s].0, starts[s].1.latent_step as u64, c as u64]), 1.0, &mut v);
-                v
-            });
-            random.chain(extras[s].iter().cloned()).collect()
-        })
-        .collect();
+    let candidates = probe_candidates(&starts, m, dim * hold, extra)?;
     let candidate = |s: usize, c: usize| -> &[f64] { &candidates[s][c] };
     let continue_with = |env: &mut LatentEnv, s: usize, cand: &[f64], mut rng: EpisodeRng| -> Result<Rollout> {
         let k0 = starts[s].1.latent_step;
@@ -630,27 +588,93 @@ pub fn probe_with(
     let states: Vec<ProbedState> = starts
         .iter()
         .enumerate()
-        .map(|(s, (seed, st))| {
-            let total: usize = wins[s][..m].iter().sum();
-            let mean = total as f64 / (m * kc) as f64;
-            let rates: Vec<f64> = wins[s][..m].iter().map(|&w| w as f64 / kc as f64).collect();
-            let var = rates.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / (m - 1) as f64;
-            let binomial = mean * (1.0 - mean) / kc as f64;
-            ProbedState {
-                seed: *seed,
-                latent_step: st.latent_step,
-                phase: st.phase,
-                candidate_successes: wins[s][..m].to_vec(),
-                mean,
-                variance_ratio: (binomial > 0.0).then(|| var / binomial),
-                best_holdout: Rate::of(fresh_wins[s], kc),
-                extra_successes: wins[s][m..].to_vec(),
-                observation: st.observation.clone(),
-                candidates: candidates[s].clone(),
-                continuations: std::mem::take(&mut continuations[s]),
-            }
+        .map(|(s, (seed, st))| ProbedState {
+            seed: *seed,
+            latent_step: st.latent_step,
+            phase: st.phase,
+            candidate_successes: wins[s][..m].to_vec(),
+            mean: wins[s][..m].iter().sum::<usize>() as f64 / (m * kc) as f64,
+            variance_ratio: variance_ratio(&wins[s][..m], kc),
+            best_holdout: Rate::of(fresh_wins[s], kc),
+            extra_successes: wins[s][m..].to_vec(),
+            observation: st.observation.clone(),
+            candidates: candidates[s].clone(),
+            continuations: std::mem::take(&mut continuations[s]),
         })
         .collect();
+    Ok(probe_report(config, states, m, primitive_steps))
+}
+
+/// The base rollouts of [`probe`]: each start's states at the probed latent steps (a start that
+/// succeeds or ends earlier gives fewer).
+fn probe_starts(config: &ProbeConfig, make_env: &(dyn Fn() -> Result<LatentEnv> + Sync)) -> Result<Vec<(u64, Start)>> {
+    let last = config.at_latent_steps.iter().copied().max().unwrap_or(0);
+    let seeds: Vec<u64> = (0..config.starts as u64).map(|i| config.first_seed + i).collect();
+    let found: Vec<Vec<(u64, Start)>> = par_jobs(&seeds, make_env, |env, &seed| {
+        let mut rng = stream(&[PREFIX, seed]);
+        let mut tracker = episode_start(env, seed)?.tracker;
+        let mut out = Vec::new();
+        let mut w = vec![0.0; env.latent_dim()];
+        for k in 0..=last {
+            if config.at_latent_steps.contains(&k) {
+                out.push((seed, Start::capture(env, &tracker, k)?));
+            }
+            normals(&mut rng, 1.0, &mut w);
+            let chunk = env.decode(&w)?;
+            for a in chunk.chunks_exact(equigym_envs::ACTION_DIM) {
+                let r = env.env_mut().step(a)?;
+                tracker.record(env, r.evaluation.success, env.env().elapsed_steps());
+                if r.truncated || r.evaluation.success {
+                    return Ok(out);
+                }
+            }
+        }
+        Ok(out)
+    })?;
+    Ok(found.into_iter().flatten().collect())
+}
+
+/// Every state's candidates: `m` random noises (each from its own stream), then `extra`'s, each
+/// `len` long.
+fn probe_candidates(
+    starts: &[(u64, Start)],
+    m: usize,
+    len: usize,
+    extra: ExtraCandidates,
+) -> Result<Vec<Vec<Vec<f64>>>> {
+    let extras: Vec<Vec<Vec<f64>>> =
+        starts.iter().map(|(seed, st)| extra(*seed, st.latent_step, &st.observation)).collect::<Result<_>>()?;
+    if let Some(got) = extras.iter().flatten().map(Vec::len).find(|&n| n != len) {
+        return Err(
+            equigym_envs::EnvError::WrongLength { what: "extra candidate noise".into(), expected: len, got }.into()
+        );
+    }
+    Ok(starts
+        .iter()
+        .zip(extras)
+        .map(|((seed, st), extra)| {
+            let random = (0..m).map(|c| {
+                let mut v = vec![0.0; len];
+                normals(&mut stream(&[CANDIDATE, *seed, st.latent_step as u64, c as u64]), 1.0, &mut v);
+                v
+            });
+            random.chain(extra).collect()
+        })
+        .collect())
+}
+
+/// Between-candidate variance of the success rates over the binomial variance at their mean
+/// (`None` where the mean is 0 or 1).
+fn variance_ratio(wins: &[usize], kc: usize) -> Option<f64> {
+    let m = wins.len();
+    let mean = wins.iter().sum::<usize>() as f64 / (m * kc) as f64;
+    let var = wins.iter().map(|&w| (w as f64 / kc as f64 - mean).powi(2)).sum::<f64>() / (m - 1) as f64;
+    let binomial = mean * (1.0 - mean) / kc as f64;
+    (binomial > 0.0).then(|| var / binomial)
+}
+
+/// The pooled figures of [`probe`], over all states and per phase.
+fn probe_report(config: &ProbeConfig, states: Vec<ProbedState>, m: usize, primitive_steps: usize) -> ProbeReport {
     let all: Vec<&ProbedState> = states.iter().collect();
     let (pooled_ratio, pooled_ratio_null_sd, informative_states, best_gain, best_gain_se) = pooled(&all, m);
     let by_phase = Phase::ALL
@@ -670,7 +694,7 @@ pub fn probe_with(
             })
         })
         .collect();
-    Ok(ProbeReport {
+    ProbeReport {
         config: config.clone(),
         states,
         pooled_ratio,
@@ -680,7 +704,7 @@ pub fn probe_with(
         best_gain_se,
         by_phase,
         primitive_steps,
-    })
+    }
 }
 
 // -- base rollouts: failure breakdown and chunk spread ----------------------------------------

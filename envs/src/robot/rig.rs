@@ -142,12 +142,55 @@ impl RobotRig {
                 reason: format!("{dof} arm joints: at most 26 are supported"),
             });
         }
-        // Bodies of each arm frame with the links (and, last, the hand) attached to it.
-        let frames = dof + 1;
         // One self-collision index per arm frame (the fingers take the next, unused one). Until
-        // the exclusions are known (below), nothing collides with anything of the robot.
-        let group_count = frames + 1;
+        // the exclusions are known (`allow_self_collision`), nothing collides with anything of
+        // the robot.
+        let group_count = dof + 2;
         let none = vec![vec![false; group_count]; group_count];
+        let (link_bodies, link_colliders, hand_colliders) = Self::spawn_links(world, &model, &base, config, &none)?;
+        let arm_joints = Self::spawn_arm_joints(world, &model, &link_bodies, config)?;
+        // The fingers touch the table and the objects, never the arm: in rapier (4 solver
+        // iterations) a contact between a finger and the forearm, both links of one multibody,
+        // pushed the finger 30 mm through its joint limit.
+        let finger_groups = link_groups(dof + 1, &none);
+        let (finger_bodies, finger_joints, finger_colliders) =
+            Self::spawn_fingers(world, &model, link_bodies[dof], config, finger_groups)?;
+        let mut rig = Self {
+            model,
+            base,
+            link_bodies,
+            link_colliders,
+            hand_colliders,
+            finger_bodies: [finger_bodies[0], finger_bodies[1]],
+            finger_colliders: [finger_colliders[0].clone(), finger_colliders[1].clone()],
+            arm_joints,
+            finger_joints: [finger_joints[0], finger_joints[1]],
+            arm_dofs: Vec::new(),
+            finger_dofs: [0; 2],
+            joint_limits: config.joint_limits,
+        };
+        rig.resolve_dofs(world, config)?;
+        rig.place(world, q0, [finger0; 2]);
+        let PhysicsWorld { bodies, colliders, .. } = world;
+        bodies.propagate_modified_body_positions_to_colliders(colliders);
+        if config.self_collision {
+            rig.allow_self_collision(world, group_count);
+        }
+        Ok(rig)
+    }
+
+    /// The bodies of each arm frame with the links (and, last, the hand) attached to it, their
+    /// colliders, and the hand's colliders.
+    #[allow(clippy::type_complexity)]
+    fn spawn_links(
+        world: &mut PhysicsWorld,
+        model: &RobotModel,
+        base: &Isometry3<f64>,
+        config: &PhysicsConfig,
+        none: &[Vec<bool>],
+    ) -> Result<(Vec<RigidBodyHandle>, Vec<Vec<ColliderHandle>>, Vec<ColliderHandle>)> {
+        let dof = model.dof();
+        let frames = dof + 1;
         let robot_friction = config.friction as f32;
         let mut link_bodies = Vec::with_capacity(frames);
         let mut link_colliders = Vec::with_capacity(frames);
@@ -161,9 +204,9 @@ impl RobotRig {
                 mprops += mass_properties(&model.hand_inertia, &model.hand_offset, &model.hand_link)?;
             }
             let builder =
-                if frame == 0 { RigidBodyBuilder::fixed().pose(to_pose(&base)) } else { RigidBodyBuilder::dynamic() };
+                if frame == 0 { RigidBodyBuilder::fixed().pose(to_pose(base)) } else { RigidBodyBuilder::dynamic() };
             let body = world.insert_body(robot_body(builder, config).additional_mass_properties(mprops));
-            let groups = link_groups(frame, &none);
+            let groups = link_groups(frame, none);
             let colour = colour_code(LINK_COLOURS[frame % 2]);
             let mut cols = Vec::new();
             for link in model.links.iter().filter(|l| l.frame == frame) {
@@ -190,6 +233,17 @@ impl RobotRig {
             link_colliders.push(cols);
         }
 
+        Ok((link_bodies, link_colliders, hand_colliders))
+    }
+
+    /// The arm's revolute joints (position motors, limits where they apply) between frames.
+    fn spawn_arm_joints(
+        world: &mut PhysicsWorld,
+        model: &RobotModel,
+        link_bodies: &[RigidBodyHandle],
+        config: &PhysicsConfig,
+    ) -> Result<Vec<MultibodyJointHandle>> {
+        let dof = model.dof();
         let stiffness = config.joint_stiffness as f32;
         let damping = config.joint_damping as f32;
         let mut arm_joints = Vec::with_capacity(dof);
@@ -215,11 +269,18 @@ impl RobotRig {
             arm_joints.push(handle);
         }
 
-        let hand_body = link_bodies[dof];
-        // The fingers touch the table and the objects, never the arm: in rapier (4 solver
-        // iterations) a contact between a finger and the forearm, both links of one multibody,
-        // pushed the finger 30 mm through its joint limit.
-        let finger_groups = link_groups(frames, &none);
+        Ok(arm_joints)
+    }
+
+    /// The two fingers: bodies, prismatic joints on the hand, colliders.
+    #[allow(clippy::type_complexity)]
+    fn spawn_fingers(
+        world: &mut PhysicsWorld,
+        model: &RobotModel,
+        hand_body: RigidBodyHandle,
+        config: &PhysicsConfig,
+        finger_groups: InteractionGroups,
+    ) -> Result<(Vec<RigidBodyHandle>, Vec<MultibodyJointHandle>, Vec<Vec<ColliderHandle>>)> {
         let finger_force = config.max_finger_force;
         let mut finger_bodies = Vec::new();
         let mut finger_joints = Vec::new();
@@ -255,41 +316,32 @@ impl RobotRig {
             finger_colliders.push(cols);
         }
 
-        let mut rig = Self {
-            model,
-            base,
-            link_bodies,
-            link_colliders,
-            hand_colliders,
-            finger_bodies: [finger_bodies[0], finger_bodies[1]],
-            finger_colliders: [finger_colliders[0].clone(), finger_colliders[1].clone()],
-            arm_joints,
-            finger_joints: [finger_joints[0], finger_joints[1]],
-            arm_dofs: Vec::new(),
-            finger_dofs: [0; 2],
-            joint_limits: config.joint_limits,
-        };
+        Ok((finger_bodies, finger_joints, finger_colliders))
+    }
+
+    /// The multibody's dof index of every joint, and the armature of each.
+    fn resolve_dofs(&mut self, world: &mut PhysicsWorld, config: &PhysicsConfig) -> Result<()> {
         // Settle the root type (a fixed base has no free joint) before reading dof indices.
-        if let Some((mb, _)) = world.multibody_joints.get_mut(rig.arm_joints[0]) {
+        if let Some((mb, _)) = world.multibody_joints.get_mut(self.arm_joints[0]) {
             mb.forward_kinematics(&world.bodies, true);
         }
         let dof_of = |world: &PhysicsWorld, h: MultibodyJointHandle| {
             world.multibody_joints.get(h).and_then(|(mb, id)| mb.link(id)).map(|l| l.assembly_id())
         };
-        let mut arm_dofs = Vec::with_capacity(dof);
-        for h in &rig.arm_joints {
+        let mut arm_dofs = Vec::with_capacity(self.arm_joints.len());
+        for h in &self.arm_joints {
             arm_dofs.push(
                 dof_of(world, *h).ok_or_else(|| EnvError::InvalidConfig("the arm multibody lost a joint".into()))?,
             );
         }
-        rig.arm_dofs = arm_dofs;
+        self.arm_dofs = arm_dofs;
         for k in 0..2 {
-            rig.finger_dofs[k] = dof_of(world, rig.finger_joints[k])
+            self.finger_dofs[k] = dof_of(world, self.finger_joints[k])
                 .ok_or_else(|| EnvError::InvalidConfig("the arm multibody lost a finger".into()))?;
         }
         {
-            let (arm_dofs, finger_dofs) = (rig.arm_dofs.clone(), rig.finger_dofs);
-            let mb = rig.multibody_mut(world);
+            let (arm_dofs, finger_dofs) = (self.arm_dofs.clone(), self.finger_dofs);
+            let mb = self.multibody_mut(world);
             let armature = mb.armature_mut();
             for d in arm_dofs {
                 armature[d] = config.joint_armature as f32;
@@ -298,28 +350,29 @@ impl RobotRig {
                 armature[d] = config.finger_armature as f32;
             }
         }
-        rig.place(world, q0, [finger0; 2]);
-        let PhysicsWorld { bodies, colliders, .. } = world;
-        bodies.propagate_modified_body_positions_to_colliders(colliders);
-        if config.self_collision {
-            let mut allowed = vec![vec![false; group_count]; group_count];
-            for (i, row) in allowed.iter_mut().enumerate().take(frames) {
-                for (j, ok) in row.iter_mut().enumerate().take(frames) {
-                    *ok = i.abs_diff(j) >= SELF_COLLISION_MIN_GAP;
-                }
-            }
-            for (i, j) in rig.self_collision_exclusions(world) {
-                allowed[i][j] = false;
-                allowed[j][i] = false;
-            }
-            let groups = rig.link_colliders.clone();
-            for (index, handles) in groups.iter().enumerate() {
-                for h in handles {
-                    world.colliders[*h].set_collision_groups(link_groups(index, &allowed));
-                }
+        Ok(())
+    }
+
+    /// Let arm frames at least [`SELF_COLLISION_MIN_GAP`] apart collide, except pairs already
+    /// within [`SELF_COLLISION_MARGIN`] of each other in the current posture.
+    fn allow_self_collision(&self, world: &mut PhysicsWorld, group_count: usize) {
+        let frames = self.link_colliders.len();
+        let mut allowed = vec![vec![false; group_count]; group_count];
+        for (i, row) in allowed.iter_mut().enumerate().take(frames) {
+            for (j, ok) in row.iter_mut().enumerate().take(frames) {
+                *ok = i.abs_diff(j) >= SELF_COLLISION_MIN_GAP;
             }
         }
-        Ok(rig)
+        for (i, j) in self.self_collision_exclusions(world) {
+            allowed[i][j] = false;
+            allowed[j][i] = false;
+        }
+        let groups = self.link_colliders.clone();
+        for (index, handles) in groups.iter().enumerate() {
+            for h in handles {
+                world.colliders[*h].set_collision_groups(link_groups(index, &allowed));
+            }
+        }
     }
 
     /// Pairs of arm frames at least [`SELF_COLLISION_MIN_GAP`] apart (arm frames, then the fingers) whose
