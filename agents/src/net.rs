@@ -10,7 +10,7 @@
 //! matrix is a copy; an equivariant layer expands its basis coefficients (see [`crate::equi`]).
 
 use equigym_nn::gemm::transpose;
-use equigym_nn::{gemm, ops, Real, Trans};
+use equigym_nn::{gemm, layer_norm, ops, Real, Trans};
 use serde::{Deserialize, Serialize};
 
 use crate::equi::Basis;
@@ -100,7 +100,7 @@ pub struct Tape<T> {
     /// `acts[0]` is the input, `acts[l + 1]` the output of layer `l` (left empty for a
     /// LayerNorm that feeds a Tanh: the two run fused, and only the Tanh's output is kept).
     pub acts: Vec<Vec<T>>,
-    /// LayerNorm: mean, then 1/std per row (concatenated; [`ops::layer_norm_stats`]).
+    /// LayerNorm: mean, then 1/std per row (concatenated; [`layer_norm::layer_norm_stats`]).
     aux: Vec<Vec<T>>,
     /// PoolHead: the argmax position of each field, per row.
     argmax: Vec<Vec<u32>>,
@@ -340,7 +340,7 @@ impl<T: Real> Net<T> {
     }
 
     /// Whether layer `l` is a LayerNorm followed by a Tanh: the two run as one kernel
-    /// ([`ops::layer_norm`] with `then_tanh`), which reads the rows once while they sit in L1.
+    /// ([`layer_norm::layer_norm`] with `then_tanh`), which reads the rows once while they sit in L1.
     fn norm_feeds_tanh(&self, l: usize) -> bool {
         matches!(self.layers[l], Layer::Norm { .. }) && matches!(self.layers.get(l + 1), Some(Layer::Tanh))
     }
@@ -381,7 +381,7 @@ impl<T: Real> Net<T> {
                     ops::resize_for_overwrite(out, input.len());
                     let stats = &mut tape.aux[l];
                     ops::resize_for_overwrite(stats, 2 * rows);
-                    ops::layer_norm(input, out, n, gain, shift, stats, fused);
+                    layer_norm::layer_norm(input, out, n, gain, shift, stats, fused);
                 }
                 Layer::Tanh => {
                     ops::resize_for_overwrite(out, input.len());
@@ -466,7 +466,7 @@ impl<T: Real> Net<T> {
                             scratch.clear();
                             scratch.resize(2 * n, T::ZERO);
                             let (dg, ds) = scratch.split_at_mut(n);
-                            ops::layer_norm_backward(d, n, gain, input, stats, tanh_out, Some((dg, ds)));
+                            layer_norm::layer_norm_backward(d, n, gain, input, stats, tanh_out, Some((dg, ds)));
                             for (f, (dgf, dsf)) in dg.chunks_exact(*order).zip(ds.chunks_exact(*order)).enumerate() {
                                 for (a, b) in dgf.iter().zip(dsf) {
                                     gr[*g + f] += *a;
@@ -474,7 +474,7 @@ impl<T: Real> Net<T> {
                                 }
                             }
                         }
-                        None => ops::layer_norm_backward(d, n, gain, input, stats, tanh_out, None),
+                        None => layer_norm::layer_norm_backward(d, n, gain, input, stats, tanh_out, None),
                     }
                 }
                 Layer::Tanh => ops::tanh_backward(output, d),

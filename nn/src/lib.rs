@@ -48,7 +48,7 @@
 //!   additions in the same order; elsewhere eight rows side by side.
 //! - **Memory, not arithmetic, bounds the pointwise passes** at batch 256: LayerNorm and the
 //!   Tanh after it run as one kernel that writes only the Tanh's output and keeps each row's
-//!   mean and `1/std` ([`ops::layer_norm`]). With that, the transposed statistics, the Fourier
+//!   mean and `1/std` ([`layer_norm::layer_norm`]). With that, the transposed statistics, the Fourier
 //!   layers' own transform kernels and a branch-free argmax in the critic head, Equi-DSRL's
 //!   gradient steps/s on the AVX-512 Xeon went from 67.4 to 108.7 and DSRL's from 216.1 to
 //!   310.0 (best of 5 alternating runs of `examples/bench --only` against the previous build),
@@ -62,9 +62,13 @@
 //! Measured speed of these kernels, against the core's peak and PyTorch: [docs/agents.md](../docs/agents.md),
 //! "Kernel speed (equigym-nn)".
 
+#[macro_use]
+mod kernel_copies;
+
 pub mod adam;
 pub mod fourier;
 pub mod gemm;
+pub mod layer_norm;
 pub mod logs;
 pub mod ops;
 
