@@ -671,13 +671,27 @@ impl<T: Real> Sac<T> {
         concat_rows(&batch.obs, od, &sc.eps, ad, b, &mut sc.x);
         critic_loss += fit_twins(&mut self.critics, &mut self.opt_critics, &sc.x, &sc.q, &mut sc.grads, &mut sc.buf);
         // 6. actor through the noise critics
+        let actor_loss = self.actor_step(&batch.obs, alpha);
+        // 7. Polyak for the action critics (and the noise critics' targets, which only the
+        //    learner diagnostics read)
+        if let Some(na) = self.aliased.as_mut() {
+            polyak(&mut na.targets, &na.critics, self.config.tau);
+        }
+        polyak(&mut self.targets, &self.critics, self.config.tau);
+        StepStats { critic_loss, actor_loss, alpha: alpha.to_f64(), alpha_loss }
+    }
+
+    /// One Adam step of the actor on `min_k Q_k(s, a(s)) - alpha log pi` (or the prior's
+    /// `log pi - log p`) at the reparameterised sample `s1` drawn in phase 2; returns the loss.
+    fn actor_step(&mut self, obs: &[T], alpha: T) -> f64 {
+        let sc = &mut self.scratch;
         sc.grads.clear();
         sc.grads.resize(self.actor.num_params(), T::ZERO);
-        let actor_loss = actor_loss_grad(
+        let loss = actor_loss_grad(
             &self.head,
             &self.actor,
             &self.critics,
-            &batch.obs,
+            obs,
             &sc.s1,
             alpha,
             self.config.prior.as_ref(),
@@ -686,11 +700,7 @@ impl<T: Real> Sac<T> {
         );
         self.opt_actor.update(&mut self.actor.params, &sc.grads);
         self.actor.expand();
-        // 7. Polyak for the action critics (and the noise critics' targets, which only the
-        //    learner diagnostics read)
-        polyak(&mut na.targets, &na.critics, self.config.tau);
-        polyak(&mut self.targets, &self.critics, self.config.tau);
-        StepStats { critic_loss, actor_loss, alpha: alpha.to_f64(), alpha_loss }
+        loss
     }
 
     pub fn latent_dim(&self) -> usize {
@@ -799,21 +809,7 @@ impl<T: Real> Sac<T> {
         concat_rows(&batch.obs, od, &batch.act, ad, b, &mut sc.x);
         let critic_loss = fit_twins(&mut self.critics, &mut self.opt_critics, &sc.x, &sc.y, &mut sc.grads, &mut sc.buf);
         // 5. actor through the updated critics
-        sc.grads.clear();
-        sc.grads.resize(self.actor.num_params(), T::ZERO);
-        let actor_loss = actor_loss_grad(
-            &self.head,
-            &self.actor,
-            &self.critics,
-            &batch.obs,
-            &sc.s1,
-            alpha,
-            self.config.prior.as_ref(),
-            &mut sc.grads,
-            &mut sc.buf,
-        );
-        self.opt_actor.update(&mut self.actor.params, &sc.grads);
-        self.actor.expand();
+        let actor_loss = self.actor_step(&batch.obs, alpha);
         // 6. Polyak
         polyak(&mut self.targets, &self.critics, self.config.tau);
         StepStats { critic_loss, actor_loss, alpha: alpha.to_f64(), alpha_loss }

@@ -67,47 +67,20 @@ def run(
     steps: int = 20_000,
     out: str | Path = "runs/steer-rust",
     *,
-    threads: int = 1,
-    preset: str = "cpu",
-    joint_limits: bool = True,
-    controller: str | None = None,
-    eval_every: int = 2000,
-    eval_episodes: int = 50,
     policy: str | None = None,
-    ent_init: float | None = None,
-    horizon: int | None = None,
-    terminate_on_success: bool = False,
-    noise_aliased: bool = False,
-    target_entropy: float | None = None,
-    prior_kl: float | None = None,
-    reward_scale: float | None = None,
-    progress: bool = True,
+    **options: Any,
 ) -> dict[str, Any]:
     """One Rust steering run (see the module docs); returns its summary (``run_dir``, ``rows``,
     ``env_steps``, ``grad_steps``, ``seconds``, ``seconds_by_activity`` (``rollout``,
-    ``train``, ``eval``), ``eval_env_steps``, ``params_hash``, ``fields``, parameter counts)."""
-    return _core.steer_run(
-        method,
-        task,
-        seed,
-        steps,
-        str(out),
-        threads=threads,
-        preset=preset,
-        joint_limits=joint_limits,
-        controller=controller,
-        eval_every=eval_every,
-        eval_episodes=eval_episodes,
-        policy=_policy(task, policy),
-        ent_init=ent_init,
-        horizon=horizon,
-        terminate_on_success=terminate_on_success,
-        noise_aliased=noise_aliased,
-        target_entropy=target_entropy,
-        prior_kl=prior_kl,
-        reward_scale=reward_scale,
-        progress=progress,
-    )
+    ``train``, ``eval``), ``eval_env_steps``, ``params_hash``, ``fields``, parameter counts).
+
+    ``options`` are ``equigym._core.steer_run``'s keyword options, typed in its stub (threads,
+    preset, joint_limits, controller, eval_every, eval_episodes, ent_init, horizon,
+    terminate_on_success, noise_aliased, target_entropy, prior_kl, reward_scale, progress);
+    an unknown name is a ``TypeError``. ``policy`` defaults to the task's shipped EDP and
+    ``progress`` to True."""
+    options.setdefault("progress", True)
+    return _core.steer_run(method, task, seed, steps, str(out), policy=_policy(task, policy), **options)
 
 
 def _trainable(config: dict[str, Any]) -> None:
@@ -135,12 +108,8 @@ def _trainable(config: dict[str, Any]) -> None:
                 eval_episodes=c["eval_episodes"],
                 policy=c["policy"],
                 ent_init=c["ent_init"],
-                terminate_on_success=c.get("terminate_on_success", False),
-                noise_aliased=c.get("noise_aliased", False),
-                target_entropy=c.get("target_entropy"),
-                prior_kl=c.get("prior_kl"),
-                reward_scale=c.get("reward_scale"),
                 progress=False,
+                **{k: c[k] for k in _OPTIONS if k in c},
             )
             rows = [tuple(r) for r in s["rows"]]
             last = rows[-1] if rows else (0, float("nan"), float("nan"), 0.0)
@@ -789,12 +758,8 @@ def main(argv: list[str] | None = None) -> None:
             policy=a.policy,
             ent_init=a.ent_init,
             horizon=a.horizon,
-            terminate_on_success=options["terminate_on_success"],
-            noise_aliased=options["noise_aliased"],
-            target_entropy=options.get("target_entropy"),
-            prior_kl=options.get("prior_kl"),
-            reward_scale=options.get("reward_scale"),
             progress=not a.quiet,
+            **options,
         )
         print(json.dumps({k: v for k, v in s.items() if k != "rows"}, default=str))
 
