@@ -13,6 +13,7 @@ for n in 16 64; do
 done
 target/release/steer eval $C --out docs/steering/arm6/stack-h20 --actor sampled
 target/release/steer eval $C --out docs/steering/arm6/stack-h20 --actor mean
+target/release/steer eval $C --out /tmp/untrained --actor mean   # control: the untrained actor's mean
 # The KL-budget runs (4 and 10 nats) the same ways: docs/steering/arm6/best-of/stack-kl-400.jsonl (~12 min).
 for k in 4 10; do
   K="--method dsrl --task stack --seed 0 --steps 60000 --eval-every 20000 --eval-episodes 100 --terminate-on-success --prior-kl $k --threads 2 --episodes 400 --out docs/steering/arm6/stack-kl$k"
