@@ -13,9 +13,10 @@
 //! `run` writes `OUT/<task>/<method>/seed<S>/log.csv` (and run.json, summary.json,
 //! checkpoint.bin); started again with the same arguments it resumes from the checkpoint.
 //! `probe` loads that checkpoint (the untrained learner when there is none) and writes
-//! `DIR/critic-probe.{json,md}`; `--threads` sets its worker threads. `eval` evaluates that
-//! checkpoint's actor (its mean noise by default, or sampled) on the run's `--eval-episodes`
-//! pinned starts and prints one JSON line with the rate and its Wilson 95 % interval.
+//! `DIR/critic-probe.{json,md}`. `eval` evaluates that checkpoint as a policy (the actor's mean
+//! noise by default, its samples, or the critic's best of N fresh N(0, I) candidates) on the
+//! run's pinned starts (`--episodes`, default the run's `--eval-episodes`) and prints one JSON
+//! line with the rate and its Wilson 95 % interval. Both run on `--threads` worker threads.
 
 use equigym_envs::Controller;
 use std::process::ExitCode;
@@ -168,7 +169,8 @@ fn parse_eval(args: &mut Vec<String>) -> Result<(ActorNoise, Option<usize>), Str
             Some("mean") => ActorNoise::Mean,
             Some("sampled") => ActorNoise::Sampled,
             Some(b) if b.starts_with("best-of-") => {
-                ActorNoise::BestOf(b[8..].parse().map_err(|_| format!("--actor best-of-N takes a count, got '{b}'"))?)
+                let n = b[8..].parse().ok().filter(|n| *n >= 1);
+                ActorNoise::BestOf(n.ok_or_else(|| format!("--actor best-of-N takes a count >= 1, got '{b}'"))?)
             }
             other => return Err(format!("--actor takes mean, sampled or best-of-N, got {other:?}\n{USAGE}")),
         };
@@ -206,11 +208,16 @@ fn main() -> ExitCode {
     }
 }
 
-fn probe_run(cfg: &RunConfig, p: &ProbeArgs, args: &[String]) -> equigym_agents::Result<()> {
+/// Rayon's global pool with `--threads` workers (0: rayon's default) for `probe` and `eval`.
+fn use_threads(cfg: &RunConfig) {
     if cfg.threads > 0 {
         // (fails only when a pool exists already, which then serves)
         let _ = rayon::ThreadPoolBuilder::new().num_threads(cfg.threads).build_global();
     }
+}
+
+fn probe_run(cfg: &RunConfig, p: &ProbeArgs, args: &[String]) -> equigym_agents::Result<()> {
+    use_threads(cfg);
     let report = critic_probe(cfg, &p.config)?;
     let io = |e: std::io::Error| equigym_agents::Error::InvalidOption(format!("{}: {e}", p.report.display()));
     std::fs::create_dir_all(&p.report).map_err(io)?;
@@ -224,9 +231,7 @@ fn probe_run(cfg: &RunConfig, p: &ProbeArgs, args: &[String]) -> equigym_agents:
 }
 
 fn eval_run(cfg: &RunConfig, noise: ActorNoise, episodes: Option<usize>) -> equigym_agents::Result<()> {
-    if cfg.threads > 0 {
-        let _ = rayon::ThreadPoolBuilder::new().num_threads(cfg.threads).build_global();
-    }
+    use_threads(cfg);
     let (trained, episodes) = evaluate_checkpoint(cfg, noise, episodes)?;
     let wins = episodes.successes.iter().filter(|s| **s).count();
     let rate = Rate::of(wins, episodes.successes.len());

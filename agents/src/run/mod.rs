@@ -55,7 +55,6 @@ pub use config::{
     MEAN_Q_SAMPLE, TARGET_ENTROPY, TAU,
 };
 pub use probe::{critic_probe, CriticProbeConfig, CriticProbeReport};
-// (evaluate_checkpoint and ActorNoise are defined below.)
 pub use state::CHECKPOINT_FORMAT;
 
 use crate::error::{io_err, Error, Result};
@@ -306,7 +305,7 @@ impl Runner {
                     w.iter_mut().for_each(|v| *v = v.clamp(-bound, bound) / bound);
                     let o: Vec<f32> = (0..n).flat_map(|_| obs[j * od..(j + 1) * od].iter().copied()).collect();
                     let q = sac.min_q(&o, &w, n);
-                    let best = (0..n).fold(0, |b, i| if q[i] > q[b] { i } else { b });
+                    let best = probe::argmax(&q);
                     out.extend(w[best * ad..(best + 1) * ad].iter().map(|v| *v as f64 * DEFAULT_LATENT_BOUND));
                 }
                 return;

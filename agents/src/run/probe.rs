@@ -173,7 +173,8 @@ fn rate(rs: &[Rollout]) -> f64 {
     rs.iter().filter(|r| r.success).count() as f64 / rs.len().max(1) as f64
 }
 
-fn argmax(x: &[f64]) -> usize {
+/// Index of the first largest value.
+pub(super) fn argmax<T: PartialOrd>(x: &[T]) -> usize {
     (0..x.len()).fold(0, |b, i| if x[i] > x[b] { i } else { b })
 }
 
