@@ -19,7 +19,7 @@ use std::sync::Arc;
 
 use equigym_wrappers::latent::LatentBatchEnv;
 use equigym_wrappers::steerability::Rate;
-use equigym_wrappers::DiffusionPolicy;
+use equigym_wrappers::{DiffusionPolicy, DEFAULT_LATENT_BOUND};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
@@ -29,11 +29,53 @@ use crate::run::{make_batch, member_obs, RunConfig};
 /// Seed of evaluation episode 0; episode k starts from seed `EVAL_SEED + k`.
 pub const EVAL_SEED: u64 = 10_000;
 
-/// Per-episode successes of an evaluation and the primitive env steps it ran.
+/// Per-episode successes of an evaluation, the primitive env steps it ran and the moments of
+/// the latent noise it chose.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Episodes {
     pub successes: Vec<bool>,
     pub env_steps: u64,
+    pub noise: NoiseMoments,
+}
+
+/// First and second moments of the latents an evaluation chose (latent units, clipped to the
+/// box as stepped), pooled over episodes and latent steps: how far a steering policy's noise is
+/// from the EDP's own N(0, I) on average. A state-independent preference shows as a mean far
+/// from 0 (iid N(0, I) picks give about sqrt(d / count)); a preference for small or large noise
+/// as an RMS away from 1 (clipping to the box alone gives a little less than 1).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct NoiseMoments {
+    /// Latent vectors counted.
+    pub count: u64,
+    /// Their sum, per coordinate.
+    pub sum: Vec<f64>,
+    /// Sum of their squared coordinates.
+    pub sum_sq: f64,
+}
+
+impl NoiseMoments {
+    fn add(&mut self, w: &[f64], bound: f64) {
+        if self.sum.is_empty() {
+            self.sum = vec![0.0; w.len()];
+        }
+        for (s, v) in self.sum.iter_mut().zip(w) {
+            let v = v.clamp(-bound, bound);
+            *s += v;
+            self.sum_sq += v * v;
+        }
+        self.count += 1;
+    }
+
+    /// Norm of the mean latent.
+    pub fn mean_norm(&self) -> f64 {
+        let n = self.count.max(1) as f64;
+        self.sum.iter().map(|s| (s / n).powi(2)).sum::<f64>().sqrt()
+    }
+
+    /// Root mean square of a coordinate.
+    pub fn rms(&self) -> f64 {
+        (self.sum_sq / (self.count.max(1) as f64 * self.sum.len().max(1) as f64)).sqrt()
+    }
 }
 
 impl Episodes {
@@ -58,6 +100,7 @@ pub(crate) fn run_episodes(envs: &mut LatentBatchEnv, choose: &mut Choose<'_>) -
     let mut active = vec![true; episodes];
     let mut successes = vec![false; episodes];
     let mut env_steps = 0u64;
+    let mut noise = NoiseMoments::default();
     let (mut latents, mut rows) = (Vec::new(), vec![0.0; episodes * ad]);
     while active.contains(&true) {
         let idx: Vec<usize> = (0..episodes).filter(|k| active[*k]).collect();
@@ -66,6 +109,7 @@ pub(crate) fn run_episodes(envs: &mut LatentBatchEnv, choose: &mut Choose<'_>) -
         choose(&idx, &obs, &mut latents);
         for (&k, w) in idx.iter().zip(latents.chunks_exact(ad)) {
             rows[k * ad..(k + 1) * ad].copy_from_slice(w);
+            noise.add(w, DEFAULT_LATENT_BOUND);
         }
         envs.step_masked(&rows, &active)?;
         for &k in &idx {
@@ -77,7 +121,7 @@ pub(crate) fn run_episodes(envs: &mut LatentBatchEnv, choose: &mut Choose<'_>) -
             }
         }
     }
-    Ok(Episodes { successes, env_steps })
+    Ok(Episodes { successes, env_steps, noise })
 }
 
 /// The base policy on a run's evaluation starts, with latent noise N(0, scale^2 I) clipped to

@@ -26,6 +26,14 @@
 //! 6. actor loss as in 5. above, through the noise critics;
 //! 7. Polyak for the action critics' targets (and for the noise critics' targets, read only by
 //!    the learner diagnostics).
+//!
+//! The selecting variant ([`Sac::train_step_select`], `--select N`) has no actor: its policy is
+//! the best of N fresh candidates from the EDP's own noise N(0, I) by min-Q ([`Sac::select`]),
+//! so every chosen noise is one the EDP was trained on, and its critics learn that policy's
+//! value (targets over the same best-of-N choice at the next state). SAC's actor moves the
+//! noise off N(0, I) as a smooth function of the state, which this EDP punishes
+//! (docs/steering.md, "Does the critic know which noise succeeds?"); selection tests whether a
+//! critic alone, used only to rank the base's own candidates, can steer.
 
 use equigym_nn::{Adam, AdamConfig, Real};
 use serde::{Deserialize, Serialize};
@@ -576,6 +584,20 @@ fn min_over<T: Real>(
     }
 }
 
+/// Draws from N(0, I) into `out`, clipped to the box of half-width `bound` and scaled to [-1, 1]
+/// (the EDP's own noise in the learner's units).
+pub fn candidates<T: Real>(rng: &mut Rng, bound: f64, out: &mut [T]) {
+    normals(rng, out);
+    for e in out.iter_mut() {
+        *e = T::from_f64(e.to_f64().clamp(-bound, bound) / bound);
+    }
+}
+
+/// Index of the first largest value (0 for an empty slice).
+pub fn argmax<T: PartialOrd>(x: &[T]) -> usize {
+    (0..x.len()).fold(0, |b, i| if x[i] > x[b] { i } else { b })
+}
+
 /// Targets `Q' <- (1 - tau) Q' + tau Q`.
 fn polyak<T: Real>(targets: &mut [Net<T>; 2], critics: &[Net<T>; 2], tau: f64) {
     let (tau, keep) = (T::from_f64(tau), T::from_f64(1.0 - tau));
@@ -662,10 +684,7 @@ impl<T: Real> Sac<T> {
         concat_rows(&batch.obs, od, &batch.chunk, ad, b, &mut sc.x);
         let mut critic_loss = fit_twins(&mut na.critics, &mut na.opt, &sc.x, &sc.y, &mut sc.grads, &mut sc.buf);
         // 5. distil the noise critics from the updated action critics over w ~ N(0, I) in the box
-        normals(rng, &mut sc.eps);
-        for e in sc.eps.iter_mut() {
-            *e = T::from_f64(e.to_f64().clamp(-bound, bound) / bound);
-        }
+        candidates(rng, bound, &mut sc.eps);
         decode(&batch.obs, &sc.eps, b, &mut sc.chunk);
         min_over(&na.critics, &batch.obs, od, &sc.chunk, ad, b, &mut sc.x, &mut sc.tape, &mut sc.q);
         concat_rows(&batch.obs, od, &sc.eps, ad, b, &mut sc.x);
@@ -679,6 +698,63 @@ impl<T: Real> Sac<T> {
         }
         polyak(&mut self.targets, &self.critics, self.config.tau);
         StepStats { critic_loss, actor_loss, alpha: alpha.to_f64(), alpha_loss }
+    }
+
+    /// One gradient step of the selecting learner (see the module docs): no actor, no entropy
+    /// term; the policy is the best of `n` fresh candidates from N(0, I) (clipped to the box of
+    /// half-width `bound`, then scaled to [-1, 1]) by min-Q, and the critics learn that policy's
+    /// value:
+    /// 1. `n` candidates `w'_j` per next state, from `rng`;
+    /// 2. target `y = r + gamma (1 - terminated) max_j min_k Q'_k(s', w'_j)`;
+    /// 3. critic loss `0.5 sum_k mean (Q_k(s, w) - y)^2` at the executed noise, one Adam step
+    ///    per critic;
+    /// 4. Polyak.
+    ///
+    /// With `n = 1` this evaluates the base policy (expected SARSA over the EDP's own noise).
+    pub fn train_step_select(&mut self, batch: &Batch<T>, n: usize, bound: f64, rng: &mut Rng) -> StepStats {
+        let (od, ad, b, n) = (self.obs_dim, self.head.dim, batch.rows, n.max(1));
+        let sc = &mut self.scratch;
+        // 1. candidates at the next states, row r's j-th at row r * n + j
+        sc.eps.resize(b * n * ad, T::ZERO);
+        candidates(rng, bound, &mut sc.eps);
+        sc.chunk.clear();
+        for r in 0..b {
+            for _ in 0..n {
+                sc.chunk.extend_from_slice(&batch.next_obs[r * od..(r + 1) * od]);
+            }
+        }
+        // 2. target over the best candidate of each next state
+        min_over(&self.targets, &sc.chunk, od, &sc.eps, ad, b * n, &mut sc.x, &mut sc.tape, &mut sc.q);
+        let gamma = T::from_f64(self.config.gamma);
+        sc.y.clear();
+        sc.y.extend((0..b).map(|r| {
+            let best = sc.q[r * n..(r + 1) * n].iter().copied().fold(T::from_f64(f64::NEG_INFINITY), T::max);
+            batch.reward[r] + (T::ONE - batch.done[r]) * gamma * best
+        }));
+        // 3. critics at the executed noise
+        concat_rows(&batch.obs, od, &batch.act, ad, b, &mut sc.x);
+        let critic_loss = fit_twins(&mut self.critics, &mut self.opt_critics, &sc.x, &sc.y, &mut sc.grads, &mut sc.buf);
+        // 4. Polyak
+        polyak(&mut self.targets, &self.critics, self.config.tau);
+        StepStats { critic_loss, ..StepStats::default() }
+    }
+
+    /// The selecting policy's picks: for each of `rows` observations, the best by min-Q of `n`
+    /// fresh candidates from `rng` (as in [`Sac::train_step_select`]), scaled to [-1, 1].
+    pub fn select(&mut self, obs: &[T], rows: usize, n: usize, bound: f64, rng: &mut Rng) -> Vec<T> {
+        let (od, ad, n) = (self.obs_dim, self.head.dim, n.max(1));
+        let mut w = vec![T::ZERO; rows * n * ad];
+        candidates(rng, bound, &mut w);
+        let o: Vec<T> =
+            (0..rows).flat_map(|r| (0..n).flat_map(move |_| obs[r * od..(r + 1) * od].iter().copied())).collect();
+        let q = self.min_q(&o, &w, rows * n);
+        let mut out = Vec::with_capacity(rows * ad);
+        for r in 0..rows {
+            let best = argmax(&q[r * n..(r + 1) * n]);
+            let k = r * n + best;
+            out.extend_from_slice(&w[k * ad..(k + 1) * ad]);
+        }
+        out
     }
 
     /// One Adam step of the actor on `min_k Q_k(s, a(s)) - alpha log pi` (or the prior's

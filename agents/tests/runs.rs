@@ -186,3 +186,50 @@ fn noise_aliased_runs_resume_bit_for_bit_and_learn_otherwise() {
         let _ = std::fs::remove_dir_all(d);
     }
 }
+
+#[test]
+fn selecting_runs_resume_bit_for_bit_and_refuse_actor_options() {
+    // Selection among fresh candidates (`select`): thread count and a kill + resume change
+    // nothing, the actor is never stepped, and options that only an actor has are refused.
+    let cfg = |dir: &Path| {
+        let mut c = tiny(Method::Dsrl, dir);
+        c.select = Some(4);
+        c.terminate_on_success = true;
+        c
+    };
+    let a_dir = scratch("select-a");
+    let a = run(&cfg(&a_dir)).unwrap();
+    assert_eq!(a.rows.len(), 4);
+    let meta = std::fs::read_to_string(a_dir.join("lift/dsrl/seed3/run.json")).unwrap();
+    let meta: serde_json::Value = serde_json::from_str(&meta).unwrap();
+    assert_eq!(meta["select"], 4, "{meta}");
+
+    let b_dir = scratch("select-b");
+    let mut cb = cfg(&b_dir);
+    cb.threads = 2;
+    cb.stop_after_evals = Some(3);
+    run(&cb).unwrap();
+    cb.stop_after_evals = None;
+    let b = run(&cb).unwrap();
+    assert_eq!((numbers(&a.rows), a.params_hash), (numbers(&b.rows), b.params_hash), "2 threads, resumed");
+
+    let plain_dir = scratch("select-plain");
+    let mut cp = tiny(Method::Dsrl, &plain_dir);
+    cp.terminate_on_success = true;
+    let plain = run(&cp).unwrap();
+    assert_ne!(a.params_hash, plain.params_hash, "selection trains another learner");
+
+    for bad in [
+        |c: &mut RunConfig| c.select = Some(0),
+        |c: &mut RunConfig| c.noise_aliased = true,
+        |c: &mut RunConfig| c.target_entropy = Some(5.0),
+        |c: &mut RunConfig| c.prior_kl = Some(2.0),
+    ] {
+        let mut c = cfg(&a_dir);
+        bad(&mut c);
+        assert!(matches!(run(&c), Err(equigym_agents::Error::InvalidOption(_))));
+    }
+    for d in [a_dir, b_dir, plain_dir] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}

@@ -30,7 +30,7 @@ pub fn steer_preset<'py>(py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyD
 /// Train one steering agent in Rust (see `python -m equigym.steer run --help`); returns a dict
 /// with the run directory, the log rows, step counts, seconds and a hash of the final weights.
 #[pyfunction]
-#[pyo3(signature = (method, task, seed, steps, out, *, threads=1, preset="cpu", joint_limits=true, controller=None, eval_every=2000, eval_episodes=50, policy=None, ent_init=None, horizon=None, terminate_on_success=false, noise_aliased=false, target_entropy=None, prior_kl=None, reward_scale=None, progress=false, stop_after_evals=None))]
+#[pyo3(signature = (method, task, seed, steps, out, *, threads=1, preset="cpu", joint_limits=true, controller=None, eval_every=2000, eval_episodes=50, policy=None, ent_init=None, horizon=None, terminate_on_success=false, noise_aliased=false, target_entropy=None, prior_kl=None, reward_scale=None, select=None, progress=false, stop_after_evals=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn steer_run<'py>(
     py: Python<'py>,
@@ -53,6 +53,7 @@ pub fn steer_run<'py>(
     target_entropy: Option<f64>,
     prior_kl: Option<f64>,
     reward_scale: Option<f64>,
+    select: Option<usize>,
     progress: bool,
     stop_after_evals: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
@@ -71,6 +72,7 @@ pub fn steer_run<'py>(
     cfg.target_entropy = target_entropy;
     cfg.prior_kl = prior_kl;
     cfg.reward_scale = reward_scale;
+    cfg.select = select;
     cfg.progress = progress;
     cfg.stop_after_evals = stop_after_evals;
     let s = py.detach(|| run(&cfg)).map_err(to_py)?;

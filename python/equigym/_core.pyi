@@ -324,6 +324,7 @@ def steer_run(
     target_entropy: float | None = None,
     prior_kl: float | None = None,
     reward_scale: float | None = None,
+    select: int | None = None,
     progress: bool = False,
     stop_after_evals: int | None = None,
 ) -> dict[str, Any]: ...

@@ -76,7 +76,7 @@ def run(
 
     ``options`` are ``equigym._core.steer_run``'s keyword options, typed in its stub (threads,
     preset, joint_limits, controller, eval_every, eval_episodes, ent_init, horizon,
-    terminate_on_success, noise_aliased, target_entropy, prior_kl, reward_scale, progress);
+    terminate_on_success, noise_aliased, target_entropy, prior_kl, reward_scale, select, progress);
     an unknown name is a ``TypeError``. ``policy`` defaults to the task's shipped EDP and
     ``progress`` to True."""
     options.setdefault("progress", True)
@@ -186,7 +186,8 @@ def _write_sweep_record(path: Path, invocations: list[dict[str, Any]], out: Path
 def sweep(a: argparse.Namespace) -> None:
     if (a.noise_aliased or any(getattr(a, o) is not None for o in _VALUED)) and a.sb3:
         raise SystemExit(
-            "--noise-aliased, --target-entropy, --prior-kl and --reward-scale are Rust-agent options; drop --sb3 or them"
+            "--noise-aliased, --target-entropy, --prior-kl, --reward-scale and --select are Rust-agent options; "
+            "drop --sb3 or them"
         )
     try:
         from ray import tune
@@ -487,8 +488,8 @@ CONTROL_SCALES = (1.0, 0.5, 0.0)
 #: run.json's evaluation settings when it does not name them (the runner's defaults).
 _DEFAULT_EVAL = {"eval_every": 2000, "eval_episodes": 50}
 #: The run options that ``run.json`` records when set: switches, then options with a value.
-_OPTIONS = ("terminate_on_success", "noise_aliased", "target_entropy", "prior_kl", "reward_scale")
-_VALUED = ("target_entropy", "prior_kl", "reward_scale")
+_OPTIONS = ("terminate_on_success", "noise_aliased", "target_entropy", "prior_kl", "reward_scale", "select")
+_VALUED = ("target_entropy", "prior_kl", "reward_scale", "select")
 
 
 def _read_run(d: Path) -> dict[str, Any]:
@@ -713,6 +714,13 @@ def main(argv: list[str] | None = None) -> None:
             type=float,
             default=None,
             help="multiply the rewards the learner stores by this factor (default 1; evaluation unchanged; Rust agents)",
+        )
+        s.add_argument(
+            "--select",
+            type=int,
+            default=None,
+            help="steer by selection: the best of N fresh N(0, I) noises by the critics, no actor; the critics "
+            "learn that policy's value (1: the base policy's; Rust agents)",
         )
         s.add_argument(
             "--ent-init", type=float, default=None, help="initial entropy coefficient (default: the preset's)"

@@ -28,7 +28,7 @@ use equigym_wrappers::steerability::{ProbeConfig, Rate};
 const USAGE: &str =
     "usage: steer run --method {dsrl,equi,approx} --task {lift,stack,square} --seed S --steps N --out DIR \
 [--threads T] [--preset cpu|paper] [--no-joint-limits] [--controller joint|cartesian] [--eval-every N] \
-[--eval-episodes N] [--policy FILE] [--ent-init X] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X | --prior-kl NATS] [--reward-scale X] [--quiet]
+[--eval-episodes N] [--policy FILE] [--ent-init X] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X | --prior-kl NATS] [--reward-scale X] [--select N] [--quiet]
        steer probe <the run's options> --report DIR [--starts N] [--at K,K,..] [--candidates M] [--continuations K] [--actor-samples A]
        steer eval <the run's options> [--actor mean|sampled|best-of-N] [--episodes N]";
 
@@ -138,6 +138,7 @@ fn parse(args: &[String]) -> Result<RunConfig, String> {
                 cfg.reward_scale =
                     Some(v.parse::<f64>().map_err(|_| format!("--reward-scale takes a number, got '{v}'"))?)
             }
+            "--select" => cfg.select = Some(num()?),
             "--quiet" => cfg.progress = false,
             "--terminate-on-success" => cfg.terminate_on_success = true,
             "--noise-aliased" => cfg.noise_aliased = true,
@@ -247,6 +248,8 @@ fn eval_run(cfg: &RunConfig, noise: ActorNoise, episodes: Option<usize>) -> equi
         "episodes": rate.n,
         "rate": rate.rate,
         "wilson95": [rate.low, rate.high],
+        "noise_mean_norm": episodes.noise.mean_norm(),
+        "noise_rms": episodes.noise.rms(),
     });
     println!("{line}");
     Ok(())

@@ -123,6 +123,12 @@ pub struct RunConfig {
     /// brings the values within its reach without changing which noise is best. Evaluation is
     /// unchanged.
     pub reward_scale: Option<f64>,
+    /// Steer by selection instead of by an actor ([`crate::sac::Sac::train_step_select`]): at
+    /// every latent step the best of this many fresh N(0, I) candidates by the critics' min-Q,
+    /// and critics that learn that policy's value. The noise stays the EDP's own (a pick's KL
+    /// to N(0, I) is at most ln n); 1 evaluates the base policy. Collection and the run's
+    /// evaluations use the same policy.
+    pub select: Option<usize>,
     /// Print a line per evaluation to stderr.
     pub progress: bool,
     /// Stop (as if killed) right after the checkpoint of this many evaluations (tests).
@@ -152,6 +158,7 @@ impl RunConfig {
             target_entropy: None,
             prior_kl: None,
             reward_scale: None,
+            select: None,
             progress: false,
             stop_after_evals: None,
         })
@@ -208,6 +215,9 @@ impl RunConfig {
         if let Some(k) = self.reward_scale {
             later.push_str(&format!("|reward_scale={k:?}"));
         }
+        if let Some(n) = self.select {
+            later.push_str(&format!("|select={n}"));
+        }
         if let Some(v) = &self.variant {
             later.push_str(&format!("|variant={v}"));
         }
@@ -254,6 +264,16 @@ impl RunConfig {
         if let Some(k) = self.reward_scale {
             if !(k.is_finite() && k > 0.0) {
                 return bad(format!("the reward scale must be a positive number, got {k}"));
+            }
+        }
+        if let Some(n) = self.select {
+            if n == 0 {
+                return bad("select needs at least one candidate".into());
+            }
+            if self.noise_aliased || self.prior_kl.is_some() || self.target_entropy.is_some() {
+                return bad(
+                    "select has no actor: noise aliasing, a prior KL budget and a target entropy do not apply".into()
+                );
             }
         }
         let ent = self.ent_init.unwrap_or(p.ent_init);

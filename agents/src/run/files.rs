@@ -106,6 +106,7 @@ impl Runner {
             target_entropy: cfg.target_entropy,
             prior_kl: cfg.prior_kl,
             reward_scale: cfg.reward_scale,
+            select: cfg.select,
             variant: cfg.variant.as_deref(),
             eval_every: (cfg.eval_every != EVAL_EVERY).then_some(cfg.eval_every),
             eval_episodes: (cfg.eval_episodes != EVAL_EPISODES).then_some(cfg.eval_episodes),
@@ -156,6 +157,8 @@ struct RunMeta<'a> {
     prior_kl: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     reward_scale: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    select: Option<usize>,
     #[serde(skip_serializing_if = "Option::is_none")]
     variant: Option<&'a str>,
     /// Evaluation settings and the controller, when not the defaults.
@@ -221,6 +224,7 @@ mod tests {
             target_entropy: None,
             prior_kl: None,
             reward_scale: None,
+            select: None,
             variant: None,
             eval_every: None,
             eval_episodes: None,

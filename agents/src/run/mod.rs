@@ -214,6 +214,8 @@ impl Runner {
         let bound = DEFAULT_LATENT_BOUND;
         let scaled: Vec<f32> = if (self.progress.num_timesteps as usize) < self.cfg.preset.warmup {
             (0..n * ad).map(|_| (self.progress.streams.warmup.normal().clamp(-bound, bound) / bound) as f32).collect()
+        } else if let Some(m) = self.cfg.select {
+            self.sac.select(&obs, n, m, bound, &mut self.progress.streams.rollout)
         } else {
             let mut eps = vec![0.0f32; n * ad];
             normals(&mut self.progress.streams.rollout, &mut eps);
@@ -251,7 +253,9 @@ impl Runner {
         if self.progress.num_timesteps as usize > self.cfg.preset.warmup {
             for _ in 0..self.cfg.utd() * n {
                 self.progress.replay.sample(self.cfg.preset.batch, &mut self.progress.streams.replay, batch);
-                let stats = if self.cfg.noise_aliased {
+                let stats = if let Some(m) = self.cfg.select {
+                    self.sac.train_step_select(batch, m, DEFAULT_LATENT_BOUND, &mut self.progress.streams.train)
+                } else if self.cfg.noise_aliased {
                     let policy = &self.policy;
                     let mut decode = |obs: &[f32], w: &[f32], rows: usize, out: &mut Vec<f32>| {
                         decode_normalized(policy, obs, w, rows, out)
@@ -278,9 +282,11 @@ impl Runner {
         Ok(())
     }
 
-    /// Success rate of the stochastic actor over the evaluation episodes.
+    /// Success rate of the stochastic actor (of the selecting policy, with `select`) over the
+    /// evaluation episodes.
     fn evaluate(&mut self) -> Result<f64> {
-        let result = self.evaluate_actor(ActorNoise::Sampled, self.cfg.eval_episodes)?;
+        let noise = self.cfg.select.map_or(ActorNoise::Sampled, ActorNoise::BestOf);
+        let result = self.evaluate_actor(noise, self.cfg.eval_episodes)?;
         self.eval_env_steps += result.env_steps;
         Ok(result.rate())
     }
@@ -297,16 +303,9 @@ impl Runner {
         let od = self.obs_dim;
         let mut choose = |idx: &[usize], obs: &[f32], out: &mut Vec<f64>| {
             if let ActorNoise::BestOf(n) = noise {
-                let n = n.max(1);
                 for (j, &k) in idx.iter().enumerate() {
-                    let mut w = vec![0.0f32; n * ad];
-                    normals(&mut rngs[k], &mut w);
-                    let bound = DEFAULT_LATENT_BOUND as f32;
-                    w.iter_mut().for_each(|v| *v = v.clamp(-bound, bound) / bound);
-                    let o: Vec<f32> = (0..n).flat_map(|_| obs[j * od..(j + 1) * od].iter().copied()).collect();
-                    let q = sac.min_q(&o, &w, n);
-                    let best = probe::argmax(&q);
-                    out.extend(w[best * ad..(best + 1) * ad].iter().map(|v| *v as f64 * DEFAULT_LATENT_BOUND));
+                    let w = sac.select(&obs[j * od..(j + 1) * od], 1, n, DEFAULT_LATENT_BOUND, &mut rngs[k]);
+                    out.extend(w.iter().map(|v| *v as f64 * DEFAULT_LATENT_BOUND));
                 }
                 return;
             }

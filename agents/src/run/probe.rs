@@ -29,7 +29,7 @@ use equigym_wrappers::DEFAULT_LATENT_BOUND;
 use super::{latent_env, RunConfig, Runner};
 use crate::error::{Error, Result};
 use crate::rng::{Rng, Stream};
-use crate::sac::{normals, Sac};
+use crate::sac::{argmax, normals, Sac};
 
 /// Settings of [`critic_probe`].
 #[derive(Clone, Debug, Serialize)]
@@ -171,11 +171,6 @@ fn discounted_return(r: &Rollout, chunk: usize, gamma: f64) -> f64 {
 
 fn rate(rs: &[Rollout]) -> f64 {
     rs.iter().filter(|r| r.success).count() as f64 / rs.len().max(1) as f64
-}
-
-/// Index of the first largest value.
-pub(super) fn argmax<T: PartialOrd>(x: &[T]) -> usize {
-    (0..x.len()).fold(0, |b, i| if x[i] > x[b] { i } else { b })
 }
 
 /// The critic's min-Q of `noises` (latent units) at observation `obs`: the noise is clipped to
