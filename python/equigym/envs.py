@@ -82,7 +82,33 @@ class SpecLayouts:
         return self.core.spec.action_layout
 
 
-class EquiEnv(SpecLayouts, gymnasium.Env):
+def action_box(spec: Any, action_mode: str) -> spaces.Box:
+    """One environment's action space: the task's absolute bounds, or [-1, 1] when normalized."""
+    if action_mode == "absolute":
+        return spaces.Box(spec.action_low.astype(np.float32), spec.action_high.astype(np.float32), dtype=np.float32)
+    return spaces.Box(-1.0, 1.0, shape=(spec.action_dim,), dtype=np.float32)
+
+
+class CoreEnv(gymnasium.Env):
+    """What every single equigym environment does the same way around its Rust ``core``: the
+    horizon and seeded resets (float32 observations, ``info["episode_seed"]``)."""
+
+    core: Any
+
+    @property
+    def horizon(self) -> int:
+        """Episode length in primitive control steps (the environment truncates there)."""
+        return self.core.horizon
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        check_seed(seed)
+        super().reset(seed=seed)
+        seed_used = episode_seed(self, seed)
+        obs = self.core.reset(seed_used)
+        return obs.astype(np.float32), {"episode_seed": seed_used}
+
+
+class EquiEnv(SpecLayouts, CoreEnv):
     (
         """One equigym task as a :class:`gymnasium.Env` (``gymnasium.make("EquiLift-v0")``).
 
@@ -129,28 +155,9 @@ class EquiEnv(SpecLayouts, gymnasium.Env):
         self._low = spec.action_low
         self._high = spec.action_high
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(spec.observation_dim,), dtype=np.float32)
-        if action_mode == "absolute":
-            self.action_space = spaces.Box(
-                self._low.astype(np.float32), self._high.astype(np.float32), dtype=np.float32
-            )
-        else:
-            self.action_space = spaces.Box(-1.0, 1.0, shape=(spec.action_dim,), dtype=np.float32)
+        self.action_space = action_box(spec, action_mode)
 
-    # -- metadata for agents and symmetry tools (the layouts: SpecLayouts) ----------------
-    @property
-    def horizon(self) -> int:
-        """Episode length in control steps (the environment truncates there)."""
-        return self.core.horizon
-
-    # -- gymnasium API ---------------------------------------------------------------------
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        check_seed(seed)
-        super().reset(seed=seed)
-        seed_used = episode_seed(self, seed)
-        obs = self.core.reset(seed_used)
-        info = {"episode_seed": seed_used}
-        return obs.astype(np.float32), info
-
+    # -- gymnasium API (reset: CoreEnv) ------------------------------------------------------
     def step(self, action):
         action = self._to_absolute(action)
         obs, reward, terminated, truncated, info = self.core.step(action)

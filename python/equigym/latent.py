@@ -23,7 +23,7 @@ from gymnasium.vector.utils import batch_space
 
 from equigym import _core
 from equigym.assets import policy_path
-from equigym.envs import OPTIONS_DOC, check_seed, episode_seed
+from equigym.envs import OPTIONS_DOC, CoreEnv
 from equigym.errors import InvalidInputError
 from equigym.vector import NativeVectorEnv, _mode_name, check_vector_args, vector_horizon
 
@@ -47,7 +47,7 @@ def _policy_arg(task: str, policy: Any) -> Any:
     return str(policy) if isinstance(policy, Path) else policy
 
 
-class EquiLatentEnv(gymnasium.Env):
+class EquiLatentEnv(CoreEnv):
     (
         """A task whose action is the latent noise of an (equivariant) diffusion policy
     (``gymnasium.make("EquiLift-Latent-v0")``).
@@ -87,18 +87,6 @@ class EquiLatentEnv(gymnasium.Env):
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(self.core.observation_dim,), dtype=np.float32)
         self.action_space = spaces.Box(-bound, bound, shape=(dim,), dtype=np.float32)
         self.chunk_len = self.core.chunk_len
-
-    @property
-    def horizon(self) -> int:
-        """Episode length in primitive control steps."""
-        return self.core.horizon
-
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        check_seed(seed)
-        super().reset(seed=seed)
-        seed_used = episode_seed(self, seed)
-        obs = self.core.reset(seed_used)
-        return obs.astype(np.float32), {"episode_seed": seed_used}
 
     def step(self, action):
         w = np.asarray(action)

@@ -41,7 +41,7 @@ from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from equigym import _core
-from equigym.envs import ACTION_MODES, OPTIONS_DOC, SpecLayouts
+from equigym.envs import ACTION_MODES, OPTIONS_DOC, SpecLayouts, action_box
 from equigym.errors import InvalidInputError
 
 try:  # gymnasium >= 1.1
@@ -241,12 +241,7 @@ class EquiVectorEnv(SpecLayouts, NativeVectorEnv):
         self._high = spec.action_high
         self._scale = 0.5 * (self._high - self._low)
         self.single_observation_space = spaces.Box(-np.inf, np.inf, shape=(spec.observation_dim,), dtype=np.float32)
-        if action_mode == "absolute":
-            self.single_action_space = spaces.Box(
-                self._low.astype(np.float32), self._high.astype(np.float32), dtype=np.float32
-            )
-        else:
-            self.single_action_space = spaces.Box(-1.0, 1.0, shape=(spec.action_dim,), dtype=np.float32)
+        self.single_action_space = action_box(spec, action_mode)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
 
