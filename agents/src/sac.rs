@@ -240,12 +240,26 @@ pub fn soft_target<T: Real>(
 ) {
     let (b, ad) = (batch.rows, head.dim);
     let od = batch.obs.len() / b.max(1);
-    head.sample(actor, &batch.next_obs, b, eps, s2);
-    if let Some(p) = prior {
-        p.apply(head, s2);
-    }
+    sample_policy(head, actor, prior, &batch.next_obs, b, eps, s2);
     min_over(targets, &batch.next_obs, od, &s2.a, ad, b, &mut buf.x, &mut buf.tapes[0], &mut buf.next_q);
     soft_values(batch, gamma, &buf.next_q, alpha, &s2.logp, y);
+}
+
+/// The actor's reparameterised sample for noise `eps` at `rows` observations, into `s`; with a
+/// `prior`, its `log pi` becomes `log pi - log p`.
+fn sample_policy<T: Real>(
+    head: &PolicyHead,
+    actor: &Net<T>,
+    prior: Option<&NoisePrior>,
+    obs: &[T],
+    rows: usize,
+    eps: &[T],
+    s: &mut ActorSample<T>,
+) {
+    head.sample(actor, obs, rows, eps, s);
+    if let Some(p) = prior {
+        p.apply(head, s);
+    }
 }
 
 /// `y_r = r_r + gamma (1 - terminated_r) (next_q_r - alpha log pi_r)`, into `y`.
@@ -657,26 +671,16 @@ impl<T: Real> Sac<T> {
         rng: &mut Rng,
     ) -> StepStats {
         let (od, ad, b) = (self.obs_dim, self.head.dim, batch.rows);
-        let Some(na) = self.aliased.as_mut() else {
+        // The action critics leave the learner for the step (no other phase reads them there).
+        let Some(mut na) = self.aliased.take() else {
             return self.train_step(batch, rng);
         };
+        // 1. w ~ pi(.|s); 2. entropy coefficient
+        let (alpha, alpha_loss) = self.sample_and_step_alpha(&batch.obs, rng);
         let sc = &mut self.scratch;
-        // 1. w ~ pi(.|s)
-        sc.eps.resize(b * ad, T::ZERO);
-        normals(rng, &mut sc.eps);
-        self.head.sample(&self.actor, &batch.obs, b, &sc.eps, &mut sc.s1);
-        if let Some(p) = &self.config.prior {
-            p.apply(&self.head, &mut sc.s1);
-        }
-        // 2. entropy coefficient
-        let (alpha, alpha_loss) =
-            step_alpha(&mut self.log_alpha, &mut self.opt_alpha, &sc.s1.logp, self.config.alpha_target());
         // 3. target through the action critics' targets at the decoded next chunk
         normals(rng, &mut sc.eps);
-        self.head.sample(&self.actor, &batch.next_obs, b, &sc.eps, &mut sc.s2);
-        if let Some(p) = &self.config.prior {
-            p.apply(&self.head, &mut sc.s2);
-        }
+        sample_policy(&self.head, &self.actor, self.config.prior.as_ref(), &batch.next_obs, b, &sc.eps, &mut sc.s2);
         decode(&batch.next_obs, &sc.s2.a, b, &mut sc.chunk);
         min_over(&na.targets, &batch.next_obs, od, &sc.chunk, ad, b, &mut sc.x, &mut sc.tape, &mut sc.q);
         soft_values(batch, T::from_f64(self.config.gamma), &sc.q, alpha, &sc.s2.logp, &mut sc.y);
@@ -693,10 +697,9 @@ impl<T: Real> Sac<T> {
         let actor_loss = self.actor_step(&batch.obs, alpha);
         // 7. Polyak for the action critics (and the noise critics' targets, which only the
         //    learner diagnostics read)
-        if let Some(na) = self.aliased.as_mut() {
-            polyak(&mut na.targets, &na.critics, self.config.tau);
-        }
+        polyak(&mut na.targets, &na.critics, self.config.tau);
         polyak(&mut self.targets, &self.critics, self.config.tau);
+        self.aliased = Some(na);
         StepStats { critic_loss, actor_loss, alpha: alpha.to_f64(), alpha_loss }
     }
 
@@ -755,6 +758,17 @@ impl<T: Real> Sac<T> {
             out.extend_from_slice(&w[k * ad..(k + 1) * ad]);
         }
         out
+    }
+
+    /// Phases 1 and 2 of a step: the actor's sample at `obs` (into the scratch's `s1`, with
+    /// noise from `rng`), then one Adam step of the entropy coefficient; returns `alpha` before
+    /// the step and its loss.
+    fn sample_and_step_alpha(&mut self, obs: &[T], rng: &mut Rng) -> (T, f64) {
+        let (ad, b, sc) = (self.head.dim, obs.len() / self.obs_dim.max(1), &mut self.scratch);
+        sc.eps.resize(b * ad, T::ZERO);
+        normals(rng, &mut sc.eps);
+        sample_policy(&self.head, &self.actor, self.config.prior.as_ref(), obs, b, &sc.eps, &mut sc.s1);
+        step_alpha(&mut self.log_alpha, &mut self.opt_alpha, &sc.s1.logp, self.config.alpha_target())
     }
 
     /// One Adam step of the actor on `min_k Q_k(s, a(s)) - alpha log pi` (or the prior's
@@ -855,17 +869,9 @@ impl<T: Real> Sac<T> {
     /// One gradient step on a minibatch (see the module docs); `rng` is the training stream.
     pub fn train_step(&mut self, batch: &Batch<T>, rng: &mut Rng) -> StepStats {
         let (od, ad, b) = (self.obs_dim, self.head.dim, batch.rows);
+        // 1. a ~ pi(.|s); 2. entropy coefficient
+        let (alpha, alpha_loss) = self.sample_and_step_alpha(&batch.obs, rng);
         let sc = &mut self.scratch;
-        // 1. a ~ pi(.|s)
-        sc.eps.resize(b * ad, T::ZERO);
-        normals(rng, &mut sc.eps);
-        self.head.sample(&self.actor, &batch.obs, b, &sc.eps, &mut sc.s1);
-        if let Some(p) = &self.config.prior {
-            p.apply(&self.head, &mut sc.s1);
-        }
-        // 2. entropy coefficient
-        let (alpha, alpha_loss) =
-            step_alpha(&mut self.log_alpha, &mut self.opt_alpha, &sc.s1.logp, self.config.alpha_target());
         // 3. target
         normals(rng, &mut sc.eps);
         soft_target(
