@@ -715,6 +715,20 @@ impl<T: Real> Sac<T> {
     ///
     /// With `n = 1` this evaluates the base policy (expected SARSA over the EDP's own noise).
     pub fn train_step_select(&mut self, batch: &Batch<T>, n: usize, bound: f64, rng: &mut Rng) -> StepStats {
+        let (od, ad, b) = (self.obs_dim, self.head.dim, batch.rows);
+        // 1. and 2.
+        self.select_target(batch, n, bound, rng);
+        let sc = &mut self.scratch;
+        // 3. critics at the executed noise
+        concat_rows(&batch.obs, od, &batch.act, ad, b, &mut sc.x);
+        let critic_loss = fit_twins(&mut self.critics, &mut self.opt_critics, &sc.x, &sc.y, &mut sc.grads, &mut sc.buf);
+        // 4. Polyak
+        polyak(&mut self.targets, &self.critics, self.config.tau);
+        StepStats { critic_loss, ..StepStats::default() }
+    }
+
+    /// Phases 1 and 2 of [`Sac::train_step_select`]: the target into the scratch's `y`.
+    fn select_target(&mut self, batch: &Batch<T>, n: usize, bound: f64, rng: &mut Rng) {
         let (od, ad, b, n) = (self.obs_dim, self.head.dim, batch.rows, n.max(1));
         let sc = &mut self.scratch;
         // 1. candidates at the next states, row r's j-th at row r * n + j
@@ -734,12 +748,29 @@ impl<T: Real> Sac<T> {
             let best = sc.q[r * n..(r + 1) * n].iter().copied().fold(T::from_f64(f64::NEG_INFINITY), T::max);
             batch.reward[r] + (T::ONE - batch.done[r]) * gamma * best
         }));
-        // 3. critics at the executed noise
-        concat_rows(&batch.obs, od, &batch.act, ad, b, &mut sc.x);
-        let critic_loss = fit_twins(&mut self.critics, &mut self.opt_critics, &sc.x, &sc.y, &mut sc.grads, &mut sc.buf);
-        // 4. Polyak
-        polyak(&mut self.targets, &self.critics, self.config.tau);
-        StepStats { critic_loss, ..StepStats::default() }
+    }
+
+    /// The selecting learner's state on `batch` (no parameter changes; `rng` draws the
+    /// candidates): its critic loss and mean target as in [`Sac::train_step_select`], and
+    /// `policy_q` at its own picks. It has no actor: alpha, entropy, edge fraction and the KL to
+    /// N(0, I) are 0 (a pick's KL is at most ln n).
+    pub fn diagnose_select(&mut self, batch: &Batch<T>, n: usize, bound: f64, rng: &mut Rng) -> Diagnostics {
+        let (od, ad, b) = (self.obs_dim, self.head.dim, batch.rows);
+        if b == 0 {
+            return Diagnostics::default();
+        }
+        self.select_target(batch, n, bound, rng);
+        let y = std::mem::take(&mut self.scratch.y);
+        let mean = |v: &mut dyn Iterator<Item = f64>| v.sum::<f64>() / b as f64;
+        let mut x = Vec::new();
+        concat_rows(&batch.obs, od, &batch.act, ad, b, &mut x);
+        let mut tape = Tape::default();
+        let critic_loss: f64 = self.critics.iter().map(|c| critic_loss(c, &x, &y, &mut tape)).sum();
+        let picks = self.select(&batch.obs, b, n, bound, rng);
+        let policy_q = mean(&mut self.min_q(&batch.obs, &picks, b).iter().map(|q| q.to_f64()));
+        let target_q = mean(&mut y.iter().map(|v| v.to_f64()));
+        self.scratch.y = y;
+        Diagnostics { critic_loss, target_q, policy_q, ..Diagnostics::default() }
     }
 
     /// The selecting policy's picks: for each of `rows` observations, the best by min-Q of `n`

@@ -203,6 +203,11 @@ fn selecting_runs_resume_bit_for_bit_and_refuse_actor_options() {
     let meta = std::fs::read_to_string(a_dir.join("lift/dsrl/seed3/run.json")).unwrap();
     let meta: serde_json::Value = serde_json::from_str(&meta).unwrap();
     assert_eq!(meta["select"], 4, "{meta}");
+    // The learner's record is the selecting learner's: no entropy coefficient, a real critic loss.
+    let train = std::fs::read_to_string(a_dir.join("lift/dsrl/seed3/train.csv")).unwrap();
+    let last: Vec<f64> = train.lines().last().unwrap().split(',').map(|v| v.parse().unwrap()).collect();
+    assert_eq!((last[1], last[2]), (0.0, 0.0), "alpha and entropy of a learner without an actor: {train}");
+    assert!(last[4] > 0.0 && last[5].is_finite() && last[6].is_finite(), "critic loss, target and policy Q: {train}");
 
     let b_dir = scratch("select-b");
     let mut cb = cfg(&b_dir);

@@ -348,7 +348,10 @@ impl Runner {
         let mut rng = Rng::new(self.cfg.seed, Stream::Diagnostics, self.progress.rows.len() as u64);
         let mut b = Batch::<f32>::default();
         self.progress.replay.sample(MEAN_Q_SAMPLE.min(self.progress.replay.len()), &mut rng, &mut b);
-        self.sac.diagnose(&b, &mut rng, DEFAULT_LATENT_BOUND)
+        match self.cfg.select {
+            Some(n) => self.sac.diagnose_select(&b, n, DEFAULT_LATENT_BOUND, &mut rng),
+            None => self.sac.diagnose(&b, &mut rng, DEFAULT_LATENT_BOUND),
+        }
     }
 
     /// Parameters of the two noise critics together.
