@@ -158,15 +158,7 @@ pub fn grad_case(method: Method, task: &str, seed: u64, rows: usize) -> Result<G
     let eps1 = draw(rows * ad, 1.0);
     let eps2 = draw(rows * ad, 1.0);
     let (log_alpha, gamma, target_entropy) = (libm::log(0.2), 0.99, 0.0);
-    let batch = Batch {
-        rows,
-        obs: obs.clone(),
-        act: act.clone(),
-        chunk: Vec::new(),
-        reward: reward.clone(),
-        next_obs: next_obs.clone(),
-        done: done.clone(),
-    };
+    let batch = Batch::of(obs.clone(), act.clone(), reward.clone(), next_obs.clone(), done.clone());
     let alpha = libm::exp(log_alpha);
     let mut s2 = ActorSample::default();
     let (mut buf, mut y) = (Buffers::default(), Vec::new());

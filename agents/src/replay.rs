@@ -44,6 +44,13 @@ pub struct Batch<T> {
     pub done: Vec<T>,
 }
 
+impl<T> Batch<T> {
+    /// A minibatch of `reward.len()` transitions without action chunks (tests and probes).
+    pub fn of(obs: Vec<T>, act: Vec<T>, reward: Vec<T>, next_obs: Vec<T>, done: Vec<T>) -> Self {
+        Self { rows: reward.len(), obs, act, chunk: Vec::new(), reward, next_obs, done }
+    }
+}
+
 impl Replay {
     pub fn new(obs_dim: usize, act_dim: usize, capacity: usize) -> Self {
         Self::with_chunks(obs_dim, act_dim, 0, capacity)

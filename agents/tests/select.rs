@@ -51,15 +51,7 @@ fn select_steps_fit_the_value_of_the_selecting_policy_and_leave_the_actor() {
     candidates(&mut rng, BOUND, &mut act);
     // Terminal transitions: the value is the reward, whatever the next state's candidates.
     let reward: Vec<f64> = (0..rows).map(|r| -(r as f64) / 4.0).collect();
-    let batch = Batch {
-        rows,
-        obs: obs.clone(),
-        act: act.clone(),
-        chunk: Vec::new(),
-        reward: reward.clone(),
-        next_obs: randn(rows * od, &mut rng),
-        done: vec![1.0; rows],
-    };
+    let batch = Batch::of(obs.clone(), act.clone(), reward.clone(), randn(rows * od, &mut rng), vec![1.0; rows]);
     let actor = sac.actor.params.clone();
     let first = sac.train_step_select(&batch, 4, BOUND, &mut rng).critic_loss;
     let mut last = first;
@@ -85,15 +77,7 @@ fn the_target_bootstraps_from_the_best_candidate() {
         let obs = randn(rows * od, &mut rng);
         let mut act = vec![0.0; rows * ad];
         candidates(&mut rng, BOUND, &mut act);
-        let batch = Batch {
-            rows,
-            obs: obs.clone(),
-            act: act.clone(),
-            chunk: Vec::new(),
-            reward: vec![0.0; rows],
-            next_obs: obs.clone(),
-            done: vec![0.0; rows],
-        };
+        let batch = Batch::of(obs.clone(), act.clone(), vec![0.0; rows], obs.clone(), vec![0.0; rows]);
         for _ in 0..300 {
             sac.train_step_select(&batch, n, BOUND, &mut rng);
         }
