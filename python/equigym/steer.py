@@ -444,7 +444,6 @@ def diagnose(runs: list[str], out: str | None = None) -> str:
     the last three evaluations; the options in ``run.json``), then one Markdown table per run
     directory: each evaluation (``log.csv``) beside the learner's state at that point
     (``train.csv``: what the Rust agents and ``baselines.steer`` record)."""
-    import csv
 
     def cell(v: str | None, fmt: str) -> str:
         return "" if v in (None, "", "nan") else format(float(v), fmt)
@@ -455,13 +454,8 @@ def diagnose(runs: list[str], out: str | None = None) -> str:
     ]
     lines: list[str] = []
     for d in map(Path, runs):
-        with open(d / "log.csv", newline="") as f:
-            log = list(csv.DictReader(f))
-        train: dict[str, dict[str, str]] = {}
-        if (d / "train.csv").exists():
-            with open(d / "train.csv", newline="") as f:
-                train = {r["env_steps"]: r for r in csv.DictReader(f)}
-        meta = json.loads((d / "run.json").read_text()) if (d / "run.json").exists() else {}
+        run = _read_run(d)
+        log, train, meta = run["log"], run["train"], run["meta"]
         opts = ", ".join(_option_labels(meta)) or "-"
         s = summarize(log, train)
         summary.append(
@@ -499,7 +493,7 @@ def _read_run(d: Path) -> dict[str, Any]:
     if (d / "train.csv").exists():
         with open(d / "train.csv", newline="") as f:
             train = {r["env_steps"]: r for r in csv.DictReader(f)}
-    meta = {**_DEFAULT_EVAL, **json.loads((d / "run.json").read_text())}
+    meta = {**_DEFAULT_EVAL, **(json.loads((d / "run.json").read_text()) if (d / "run.json").exists() else {})}
     return {"dir": d, "log": log, "train": train, "meta": meta}
 
 
