@@ -43,6 +43,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 import equigym  # noqa: F401  (registers the ids)
 from baselines.agents import EQUI_INITS, EquiSACPolicy, LayerNormSACPolicy, count_parameters
 from equigym import _core
+from equigym.steer import add_run_arguments
 from equigym.wrappers import TerminateOnSuccess
 
 METHODS = ("dsrl", "equi", "approx", "sac")
@@ -393,15 +394,7 @@ def main(argv: list[str] | None = None) -> None:
         default=None,
         help="equivariant layers' initialisation: escnn's (default) or scaled to PyTorch's default RMS",
     )
-    s.add_argument("--no-joint-limits", action="store_true")
-    s.add_argument("--eval-every", type=int, default=2000)
-    s.add_argument("--eval-episodes", type=int, default=50)
-    s.add_argument("--policy", default=None, help="EDP file (default: the shipped one)")
-    s.add_argument(
-        "--terminate-on-success",
-        action="store_true",
-        help="end training episodes at the first successful latent step (evaluation unchanged)",
-    )
+    add_run_arguments(s)
     b = sub.add_parser("base", help="success of the base policy alone (latent noise N(0, I))")
     b.add_argument("--task", default="lift", choices=sorted(LATENT_IDS))
     b.add_argument("--episodes", type=int, default=100)

@@ -623,6 +623,20 @@ def compare(
     return text
 
 
+def add_run_arguments(s: argparse.ArgumentParser) -> None:
+    """The run options every steering command shares, the Rust agents' and ``baselines.steer``'s
+    (SB3) alike: joint limits, evaluation schedule, the EDP file, terminate-on-success."""
+    s.add_argument("--no-joint-limits", action="store_true")
+    s.add_argument("--eval-every", type=int, default=2000)
+    s.add_argument("--eval-episodes", type=int, default=50)
+    s.add_argument("--policy", default=None, help="EDP file (default: the shipped one)")
+    s.add_argument(
+        "--terminate-on-success",
+        action="store_true",
+        help="end training episodes at the first successful latent step (evaluation unchanged)",
+    )
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(
         prog="python -m equigym.steer", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -675,15 +689,7 @@ def main(argv: list[str] | None = None) -> None:
             s.add_argument("--out", default=f"runs/{name}")
         s.add_argument("--steps", type=int, default=20_000, help="primitive environment steps per run")
         s.add_argument("--preset", choices=("cpu", "paper"), default="cpu")
-        s.add_argument("--no-joint-limits", action="store_true")
-        s.add_argument("--eval-every", type=int, default=2000)
-        s.add_argument("--eval-episodes", type=int, default=50)
-        s.add_argument("--policy", default=None, help="EDP file (default: the shipped one)")
-        s.add_argument(
-            "--terminate-on-success",
-            action="store_true",
-            help="end training episodes at the first successful latent step (evaluation unchanged)",
-        )
+        add_run_arguments(s)
         s.add_argument(
             "--noise-aliased",
             action="store_true",
