@@ -386,18 +386,29 @@ impl<E: BatchMember, D: ActionDecoder> BatchEnv<E, D> {
         let actions: &[f64] = match self.decoder.as_mut() {
             None => actions,
             Some(decoder) => {
-                // Rows that are not stepped are decoded from zeros (finite; their chunks never run).
-                let input: std::borrow::Cow<[f64]> = match mask {
-                    None => actions.into(),
-                    Some(m) => actions
-                        .chunks_exact(dim)
-                        .zip(m)
-                        .flat_map(|(row, &on)| row.iter().map(move |v| if on { *v } else { 0.0 }))
-                        .collect::<Vec<f64>>()
-                        .into(),
-                };
-                let obs: Vec<f64> = self.slots.iter().flat_map(|s| s.obs.iter().copied()).collect();
-                decoder.decode(&self.pool, &obs, &input, &mut self.decoded)?;
+                let adim = self.member_action_dim;
+                match mask {
+                    None => {
+                        let obs: Vec<f64> = self.slots.iter().flat_map(|s| s.obs.iter().copied()).collect();
+                        decoder.decode(&self.pool, &obs, actions, &mut self.decoded)?;
+                    }
+                    Some(m) => {
+                        // Only the stepped rows are decoded (the others' chunks never run; their
+                        // rows of `decoded` keep what they held). A decoder's rows are
+                        // independent, so a row decodes the same in any batch.
+                        let rows: Vec<usize> = (0..n).filter(|&i| m[i]).collect();
+                        let obs: Vec<f64> = rows.iter().flat_map(|&i| self.slots[i].obs.iter().copied()).collect();
+                        let input: Vec<f64> =
+                            rows.iter().flat_map(|&i| actions[i * dim..(i + 1) * dim].iter().copied()).collect();
+                        let mut out = vec![0.0; rows.len() * adim];
+                        if !rows.is_empty() {
+                            decoder.decode(&self.pool, &obs, &input, &mut out)?;
+                        }
+                        for (&i, row) in rows.iter().zip(out.chunks_exact(adim)) {
+                            self.decoded[i * adim..(i + 1) * adim].copy_from_slice(row);
+                        }
+                    }
+                }
                 let rows = self.decoded.chunks_exact(self.member_action_dim).enumerate();
                 for (i, row) in rows.filter(|(i, _)| stepped(*i)) {
                     check_finite(&format!("decoded action of environment {i}"), row, self.member_action_dim)?;

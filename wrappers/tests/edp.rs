@@ -146,6 +146,18 @@ fn batched_latent_steps_equal_single_ones() {
         assert_eq!(r.executed, 4);
         assert!(r.reward >= -4.0 && r.reward <= 0.0);
     }
+    // A masked step decodes only the stepped rows, each as it decodes alone; the others keep
+    // their state.
+    let held = batch.env(1).unwrap().env().get_state().unwrap();
+    let w2: Vec<f64> = (0..3 * CHUNK).map(|i| libm::cos(i as f64 * 0.11)).collect();
+    batch.step_masked(&w2, &[true, false, true]).unwrap();
+    for k in [0, 2] {
+        let expect = single[k].decode(&w2[k * CHUNK..(k + 1) * CHUNK]).unwrap();
+        assert_eq!(batch.env(k).unwrap().last_chunk(), &expect[..], "env {k}'s masked-step chunk");
+        single[k].step(&w2[k * CHUNK..(k + 1) * CHUNK]).unwrap();
+        assert_eq!(single[k].env().get_state().unwrap(), batch.env(k).unwrap().env().get_state().unwrap());
+    }
+    assert_eq!(batch.env(1).unwrap().env().get_state().unwrap(), held, "the masked env did not move");
 }
 
 #[test]
