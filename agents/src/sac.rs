@@ -607,6 +607,16 @@ pub fn candidates<T: Real>(rng: &mut Rng, bound: f64, out: &mut [T]) {
     }
 }
 
+/// Each `dim`-long row of `rows` repeated `n` times in a row, into `out`.
+fn repeat_rows<T: Real>(rows: &[T], dim: usize, n: usize, out: &mut Vec<T>) {
+    out.clear();
+    for row in rows.chunks_exact(dim.max(1)) {
+        for _ in 0..n {
+            out.extend_from_slice(row);
+        }
+    }
+}
+
 /// Index of the first largest value (0 for an empty slice).
 pub fn argmax<T: PartialOrd>(x: &[T]) -> usize {
     (0..x.len()).fold(0, |b, i| if x[i] > x[b] { i } else { b })
@@ -734,12 +744,7 @@ impl<T: Real> Sac<T> {
         // 1. candidates at the next states, row r's j-th at row r * n + j
         sc.eps.resize(b * n * ad, T::ZERO);
         candidates(rng, bound, &mut sc.eps);
-        sc.chunk.clear();
-        for r in 0..b {
-            for _ in 0..n {
-                sc.chunk.extend_from_slice(&batch.next_obs[r * od..(r + 1) * od]);
-            }
-        }
+        repeat_rows(&batch.next_obs, od, n, &mut sc.chunk);
         // 2. target over the best candidate of each next state
         min_over(&self.targets, &sc.chunk, od, &sc.eps, ad, b * n, &mut sc.x, &mut sc.tape, &mut sc.q);
         let gamma = T::from_f64(self.config.gamma);
@@ -776,17 +781,23 @@ impl<T: Real> Sac<T> {
     /// The selecting policy's picks: for each of `rows` observations, the best by min-Q of `n`
     /// fresh candidates from `rng` (as in [`Sac::train_step_select`]), scaled to [-1, 1].
     pub fn select(&mut self, obs: &[T], rows: usize, n: usize, bound: f64, rng: &mut Rng) -> Vec<T> {
-        let (od, ad, n) = (self.obs_dim, self.head.dim, n.max(1));
-        let mut w = vec![T::ZERO; rows * n * ad];
+        let n = n.max(1);
+        let mut w = vec![T::ZERO; rows * n * self.head.dim];
         candidates(rng, bound, &mut w);
-        let o: Vec<T> =
-            (0..rows).flat_map(|r| (0..n).flat_map(move |_| obs[r * od..(r + 1) * od].iter().copied())).collect();
-        let q = self.min_q(&o, &w, rows * n);
+        self.pick(obs, rows, n, &w)
+    }
+
+    /// For each of `rows` observations, the candidate of highest min-Q among its `n` in
+    /// `candidates` (row r's j-th at row r * n + j), in one pass of the critics.
+    pub fn pick(&mut self, obs: &[T], rows: usize, n: usize, candidates: &[T]) -> Vec<T> {
+        let (od, ad, n) = (self.obs_dim, self.head.dim, n.max(1));
+        let mut o = Vec::new();
+        repeat_rows(&obs[..rows * od], od, n, &mut o);
+        let q = self.min_q(&o, candidates, rows * n);
         let mut out = Vec::with_capacity(rows * ad);
         for r in 0..rows {
-            let best = argmax(&q[r * n..(r + 1) * n]);
-            let k = r * n + best;
-            out.extend_from_slice(&w[k * ad..(k + 1) * ad]);
+            let k = r * n + argmax(&q[r * n..(r + 1) * n]);
+            out.extend_from_slice(&candidates[k * ad..(k + 1) * ad]);
         }
         out
     }

@@ -22,6 +22,14 @@ fn randn(n: usize, rng: &mut Rng) -> Vec<f64> {
     (0..n).map(|_| rng.normal()).collect()
 }
 
+/// `rows` random states and an executed noise for each, from the EDP's noise.
+fn states_and_noise(sac: &Sac<f64>, rows: usize, rng: &mut Rng) -> (Vec<f64>, Vec<f64>) {
+    let obs = randn(rows * sac.obs_dim, rng);
+    let mut act = vec![0.0; rows * sac.latent_dim()];
+    candidates(rng, BOUND, &mut act);
+    (obs, act)
+}
+
 #[test]
 fn select_takes_the_candidate_of_highest_min_q() {
     let mut sac = learner();
@@ -44,11 +52,9 @@ fn select_takes_the_candidate_of_highest_min_q() {
 #[test]
 fn select_steps_fit_the_value_of_the_selecting_policy_and_leave_the_actor() {
     let mut sac = learner();
-    let (od, ad, rows) = (sac.obs_dim, sac.latent_dim(), 16);
+    let (od, rows) = (sac.obs_dim, 16);
     let mut rng = Rng::new(2, Stream::Train, 0);
-    let obs = randn(rows * od, &mut rng);
-    let mut act = vec![0.0; rows * ad];
-    candidates(&mut rng, BOUND, &mut act);
+    let (obs, act) = states_and_noise(&sac, rows, &mut rng);
     // Terminal transitions: the value is the reward, whatever the next state's candidates.
     let reward: Vec<f64> = (0..rows).map(|r| -(r as f64) / 4.0).collect();
     let batch = Batch::of(obs.clone(), act.clone(), reward.clone(), randn(rows * od, &mut rng), vec![1.0; rows]);
@@ -72,11 +78,9 @@ fn the_target_bootstraps_from_the_best_candidate() {
     // critic tracks the mean of Q' over the noise; with 64 it climbs to the best of them.
     let mean_q = |n: usize| {
         let mut sac = learner();
-        let (od, ad, rows) = (sac.obs_dim, sac.latent_dim(), 16);
+        let rows = 16;
         let mut rng = Rng::new(3, Stream::Train, 0);
-        let obs = randn(rows * od, &mut rng);
-        let mut act = vec![0.0; rows * ad];
-        candidates(&mut rng, BOUND, &mut act);
+        let (obs, act) = states_and_noise(&sac, rows, &mut rng);
         let batch = Batch::of(obs.clone(), act.clone(), vec![0.0; rows], obs.clone(), vec![0.0; rows]);
         for _ in 0..300 {
             sac.train_step_select(&batch, n, BOUND, &mut rng);

@@ -409,9 +409,9 @@ impl<E: BatchMember, D: ActionDecoder> BatchEnv<E, D> {
                         }
                     }
                 }
-                let rows = self.decoded.chunks_exact(self.member_action_dim).enumerate();
+                let rows = self.decoded.chunks_exact(adim).enumerate();
                 for (i, row) in rows.filter(|(i, _)| stepped(*i)) {
-                    check_finite(&format!("decoded action of environment {i}"), row, self.member_action_dim)?;
+                    check_finite(&format!("decoded action of environment {i}"), row, adim)?;
                 }
                 &self.decoded
             }

@@ -8,7 +8,7 @@ use super::{make_batch, RunConfig, Runner};
 use crate::error::Result;
 use crate::evaluation::{run_episodes, Episodes};
 use crate::rng::{Rng, Stream};
-use crate::sac::normals;
+use crate::sac::{candidates, normals};
 
 impl Runner {
     /// Success rate of the stochastic actor (of the selecting policy, with `select`) over the
@@ -29,13 +29,15 @@ impl Runner {
             (0..episodes as u64).map(|k| Rng::new(self.cfg.seed, Stream::Eval, (eval_index << 32) | k)).collect();
         let ad = self.sac.latent_dim();
         let sac = &mut self.sac;
-        let od = self.obs_dim;
         let mut choose = |idx: &[usize], obs: &[f32], out: &mut Vec<f64>| {
             if let ActorNoise::BestOf(n) = noise {
+                // Each episode's candidates from its own stream, all episodes scored at once.
+                let mut w = vec![0.0f32; idx.len() * n * ad];
                 for (j, &k) in idx.iter().enumerate() {
-                    let w = sac.select(&obs[j * od..(j + 1) * od], 1, n, DEFAULT_LATENT_BOUND, &mut rngs[k]);
-                    out.extend(w.iter().map(|v| *v as f64 * DEFAULT_LATENT_BOUND));
+                    candidates(&mut rngs[k], DEFAULT_LATENT_BOUND, &mut w[j * n * ad..(j + 1) * n * ad]);
                 }
+                let picks = sac.pick(obs, idx.len(), n, &w);
+                out.extend(picks.iter().map(|v| *v as f64 * DEFAULT_LATENT_BOUND));
                 return;
             }
             let mut eps = vec![0.0f32; idx.len() * ad];
