@@ -627,8 +627,8 @@ def add_run_arguments(s: argparse.ArgumentParser) -> None:
     """The run options every steering command shares, the Rust agents' and ``baselines.steer``'s
     (SB3) alike: joint limits, evaluation schedule, the EDP file, terminate-on-success."""
     s.add_argument("--no-joint-limits", action="store_true")
-    s.add_argument("--eval-every", type=int, default=2000)
-    s.add_argument("--eval-episodes", type=int, default=50)
+    s.add_argument("--eval-every", type=int, default=_DEFAULT_EVAL["eval_every"])
+    s.add_argument("--eval-episodes", type=int, default=_DEFAULT_EVAL["eval_episodes"])
     s.add_argument("--policy", default=None, help="EDP file (default: the shipped one)")
     s.add_argument(
         "--terminate-on-success",
