@@ -19,6 +19,7 @@ factor that commutes with the group.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -146,18 +147,31 @@ class _FieldNorm(nn.Module):
         return self.out_type(nn.functional.layer_norm(t, (t.shape[-1],), gain, shift, eps=1e-5))
 
 
+@dataclass(frozen=True)
+class EquiArch:
+    """The shape of the equivariant actor and critics, given once to the policy and shared by
+    both: the symmetry, regular fields per hidden layer, hidden layers, RPP (``residual``) and
+    the weight initialisation (``escnn`` or ``torch``)."""
+
+    symmetry: Symmetry
+    hidden_fields: int
+    layers: int
+    residual: bool = False
+    init: str = "escnn"
+
+
 class _EquiTrunk(nn.Module):
     """in_type -> [Linear + field-tied LayerNorm + Tanh] x layers on regular fields (escnn,
     optionally RPP)."""
 
-    def __init__(self, g: _Group, in_type, hidden_fields: int, layers: int, residual: bool, init: str = "escnn"):
+    def __init__(self, g: _Group, in_type, arch: EquiArch):
         super().__init__()
         mods: list[nn.Module] = []
         t = in_type
-        for _ in range(layers):
-            h = g.regular(hidden_fields)
+        for _ in range(arch.layers):
+            h = g.regular(arch.hidden_fields)
             mods += [
-                _ResidualLinear(g, t, h, residual, init),
+                _ResidualLinear(g, t, h, arch.residual, arch.init),
                 _FieldNorm(h, g.order),
                 g.enn.PointwiseNonLinearity(h, "p_tanh"),
             ]
@@ -198,24 +212,20 @@ class EquiActor(BasePolicy):
         features_extractor,
         features_dim,
         *,
-        symmetry: Symmetry,
-        hidden_fields: int,
-        layers: int,
-        residual: bool = False,
+        arch: EquiArch,
         squash: str = "radial",
-        init: str = "escnn",
         **_: Any,
     ):
         super().__init__(observation_space, action_space, features_extractor=features_extractor, squash_output=True)
         if squash not in ("radial", "tanh"):
             raise ValueError(f"squash must be 'radial' or 'tanh', got {squash!r}")
-        g = _Group(symmetry)
+        g = _Group(arch.symmetry)
         self.squash = squash
         self.in_type = g.enn.FieldType(g.gs, g.obs_reps)
-        self.trunk = _EquiTrunk(g, self.in_type, hidden_fields, layers, residual, init)
+        self.trunk = _EquiTrunk(g, self.in_type, arch)
         n_blocks = len(g.lat_blocks)
         self.head_type = g.enn.FieldType(g.gs, g.lat_reps + n_blocks * [g.gs.trivial_repr])
-        self.head = _ResidualLinear(g, self.trunk.out_type, self.head_type, residual, init)
+        self.head = _ResidualLinear(g, self.trunk.out_type, self.head_type, arch.residual, arch.init)
         self.register_buffer("obs_perm", torch.tensor(g.obs_perm))
         lat_dim = len(g.lat_perm)
         self.register_buffer("lat_inv", torch.tensor(np.argsort(g.lat_perm)))
@@ -274,16 +284,12 @@ class EquiCritic(BaseModel):
         features_extractor,
         features_dim,
         *,
-        symmetry: Symmetry,
-        hidden_fields: int,
-        layers: int,
-        residual: bool = False,
+        arch: EquiArch,
         n_critics: int = 2,
-        init: str = "escnn",
         **_: Any,
     ):
         super().__init__(observation_space, action_space, features_extractor=features_extractor)
-        g = _Group(symmetry)
+        g = _Group(arch.symmetry)
         self.in_type = g.enn.FieldType(g.gs, g.obs_reps + g.lat_reps)
         obs_dim = len(g.obs_perm)
         self.register_buffer("perm", torch.tensor(g.obs_perm + [obs_dim + i for i in g.lat_perm]))
@@ -294,12 +300,12 @@ class EquiCritic(BaseModel):
         self.outs = nn.ModuleList()
         self.plain_outs = nn.ModuleList()
         for _ in range(n_critics):
-            trunk = _EquiTrunk(g, self.in_type, hidden_fields, layers, residual, init)
+            trunk = _EquiTrunk(g, self.in_type, arch)
             self.trunks.append(trunk)
             self.pools.append(g.enn.GroupPooling(trunk.out_type))
-            self.outs.append(nn.Linear(hidden_fields, 1))
-            self.plain_outs.append(nn.Linear(trunk.out_type.size, 1) if residual else nn.Identity())
-        self.residual = residual
+            self.outs.append(nn.Linear(arch.hidden_fields, 1))
+            self.plain_outs.append(nn.Linear(trunk.out_type.size, 1) if arch.residual else nn.Identity())
+        self.residual = arch.residual
 
     def _q(self, k: int, x) -> torch.Tensor:
         h = self.trunks[k](x)
@@ -344,7 +350,7 @@ class EquiSACPolicy(SACPolicy):
             if task is None:
                 raise ValueError("EquiSACPolicy needs symmetry= or task=")
             symmetry = Symmetry(task)
-        self._equi = dict(symmetry=symmetry, hidden_fields=hidden_fields, layers=layers, residual=residual, init=init)
+        self._arch = EquiArch(symmetry, hidden_fields, layers, residual, init)
         self._squash = squash
         self._decay = (equi_weight_decay, plain_weight_decay)
         kwargs.setdefault("share_features_extractor", False)
@@ -357,8 +363,8 @@ class EquiSACPolicy(SACPolicy):
             kw["action_space"],
             kw["features_extractor"],
             kw["features_dim"],
+            arch=self._arch,
             squash=self._squash,
-            **self._equi,
         ).to(self.device)
 
     def make_critic(self, features_extractor=None):
@@ -368,8 +374,8 @@ class EquiSACPolicy(SACPolicy):
             kw["action_space"],
             kw["features_extractor"],
             kw["features_dim"],
+            arch=self._arch,
             n_critics=kw.get("n_critics", 2),
-            **self._equi,
         ).to(self.device)
 
     # escnn modules in eval mode keep their expanded weights as extra buffers; those are a cache
@@ -392,7 +398,7 @@ class EquiSACPolicy(SACPolicy):
 
     def _build(self, lr_schedule) -> None:
         super()._build(lr_schedule)
-        if self._equi["residual"]:
+        if self._arch.residual:
             # Residual pathway priors: separate L2 strengths on the two paths.
             for module in (self.actor, self.critic):
                 plain = [p for n, p in module.named_parameters() if ".plain" in n or "plain_outs" in n]

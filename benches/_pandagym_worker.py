@@ -6,29 +6,19 @@ sides: pinned to one CPU, seeded uniform-random actions drawn before timing, res
 --warmup steps, then the median over --reps runs of --steps unwrapped env.step() calls (the
 unwrapped env never asks for a reset), and the median of --resets resets.
 """
-import argparse
 import json
-import os
 import platform
 import statistics
 import time
 
+from _worker_common import pin, timing_parser
+
 
 def main():
-    ap = argparse.ArgumentParser()
+    ap = timing_parser("Time one panda-gym task.")
     ap.add_argument("--env", default="PandaPickAndPlace-v3")
-    ap.add_argument("--steps", type=int, default=2000)
-    ap.add_argument("--reps", type=int, default=3)
-    ap.add_argument("--warmup", type=int, default=200)
-    ap.add_argument("--resets", type=int, default=10)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--cpu", type=int, default=0)
     args = ap.parse_args()
-    try:
-        os.sched_setaffinity(0, {args.cpu})
-        affinity = sorted(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        affinity = None
+    affinity = pin(args.cpu)
 
     from importlib.metadata import version
 

@@ -9,7 +9,6 @@ RESULTS.md): Panda, default composite controller (OSC_POSE arm), control_freq=20
 no renderer/cameras, ignore_done=True so no resets fall inside step timing, uniform
 random actions over the action box generated before timing, median of reps.
 """
-import argparse
 import json
 import os
 import platform
@@ -17,16 +16,10 @@ import statistics
 import sys
 import time
 
+from _worker_common import pin, timing_parser
+
 # Nothing renders; this only keeps robosuite/mujoco from probing for GLFW.
 os.environ.setdefault("MUJOCO_GL", "egl")
-
-
-def pin(cpu):
-    try:
-        os.sched_setaffinity(0, {cpu})
-        return sorted(os.sched_getaffinity(0))
-    except (AttributeError, OSError):  # not Linux, or cpu not allowed
-        return None
 
 
 def median_rate(n, seconds):
@@ -34,14 +27,8 @@ def median_rate(n, seconds):
 
 
 def main():
-    ap = argparse.ArgumentParser()
+    ap = timing_parser("Time one robosuite task.")
     ap.add_argument("--task", required=True)
-    ap.add_argument("--steps", type=int, default=2000)
-    ap.add_argument("--reps", type=int, default=3)
-    ap.add_argument("--warmup", type=int, default=200)
-    ap.add_argument("--resets", type=int, default=10)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--cpu", type=int, default=0)
     ap.add_argument("--no-physics", action="store_true", help="skip the raw mj_step replay")
     args = ap.parse_args()
     affinity = pin(args.cpu)

@@ -194,20 +194,25 @@ def bench_rust(args):
 
 # ---------------------------------------------------------------- robosuite (subprocess)
 
-def bench_robosuite(task, args):
-    cmd = [str(args.robosuite_python), str(WORKER), "--task", task, "--steps", str(args.steps),
-           "--reps", str(args.reps), "--warmup", str(args.warmup), "--resets", str(args.resets),
-           "--seed", str(args.seed), "--cpu", str(args.cpu)]
+def run_worker(python, worker, extra, args, env=None):
+    """Run a peer's timing worker (``benches/_*_worker.py``) with that peer's venv ``python`` and
+    the shared timing options of ``args``; its result is the last JSON line of its stdout (peers
+    log to stdout on import), with the load average before the run added."""
+    cmd = [str(python), str(worker), *extra]
+    for name in ("steps", "reps", "warmup", "resets", "seed", "cpu"):
+        cmd += [f"--{name}", str(getattr(args, name))]
     load = loadavg()
-    env = dict(os.environ, MUJOCO_GL="egl")
     p = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout, env=env)
-    # robosuite logs to stdout on import; the worker's result is the last JSON line.
     for line in reversed(p.stdout.splitlines()):
         if line.startswith("{"):
             res = json.loads(line)
             res["load_before"] = load
             return res
     raise RuntimeError(f"worker rc={p.returncode}: {(p.stderr or p.stdout)[-800:]}")
+
+
+def bench_robosuite(task, args):
+    return run_worker(args.robosuite_python, WORKER, ["--task", task], args, env=dict(os.environ, MUJOCO_GL="egl"))
 
 
 # ---------------------------------------------------------------- report

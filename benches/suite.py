@@ -31,7 +31,6 @@ import datetime
 import json
 import shlex
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -98,19 +97,8 @@ def log(msg):
 # ---------------------------------------------------------------- peers (subprocesses)
 
 def bench_pandagym(args):
-    cmd = [str(args.pandagym_python), str(PANDAGYM_WORKER), "--steps", str(args.steps), "--reps", str(args.reps),
-           "--warmup", str(args.warmup), "--resets", str(args.resets), "--seed", str(args.seed), "--cpu", str(args.cpu)]
-    load = peers.loadavg()
-    p = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
-    for line in reversed(p.stdout.splitlines()):
-        if line.startswith("{"):
-            res = json.loads(line)
-            res["load_before"] = load
-            return res
-    raise RuntimeError(f"worker rc={p.returncode}: {(p.stderr or p.stdout)[-800:]}")
+    return peers.run_worker(args.pandagym_python, PANDAGYM_WORKER, [], args)
 
-
-# ---------------------------------------------------------------- vector env (in process)
 
 def bench_vector(env_id, b, t, args):
     import gymnasium

@@ -3,6 +3,7 @@
 import gymnasium
 import numpy as np
 import pytest
+from conftest import expert_episodes
 from gymnasium.utils.env_checker import check_env
 
 import equigym
@@ -98,18 +99,7 @@ def test_state_round_trip_is_bitwise(lift):
 
 
 def test_expert_through_python_lifts_the_cube():
-    env = gymnasium.make("EquiLift-v0")
-    core = env.unwrapped.core
-    expert = equigym.Expert("lift")
-    wins = 0
-    for seed in range(20):
-        env.reset(seed=seed)
-        expert.reset(core, seed)
-        for _ in range(150):
-            *_, info = env.step(expert.act(core))
-            if info["success"]:
-                wins += 1
-                break
+    wins, info = expert_episodes("EquiLift-v0", "lift", range(20), 150)
     assert wins >= 19
     assert info["is_success"] and info["cube_height"] > 0.015  # height of the cube's underside
 

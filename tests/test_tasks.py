@@ -3,6 +3,7 @@
 import gymnasium
 import numpy as np
 import pytest
+from conftest import expert_episodes
 from gymnasium.utils.env_checker import check_env
 
 import equigym
@@ -94,16 +95,5 @@ def test_determinism_and_state_round_trip(env_id):
 
 
 def test_stack_expert_succeeds():
-    env = gymnasium.make("EquiStack-v0")
-    core = env.unwrapped.core
-    expert = equigym.Expert("stack")
-    wins = 0
-    for seed in range(10):
-        env.reset(seed=seed)
-        expert.reset(core, seed)
-        for _ in range(400):
-            *_, truncated, info = env.step(expert.act(core))
-            if info["success"] or truncated:
-                break
-        wins += info["success"]
+    wins, _ = expert_episodes("EquiStack-v0", "stack", range(10), 400)
     assert wins >= 9

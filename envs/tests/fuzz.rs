@@ -88,40 +88,16 @@ fn some_state(task: &str, seed: u64) -> (Env, Vec<u8>) {
     (env, state)
 }
 
-/// One byte edit of a valid input.
-#[derive(Clone, Debug)]
-enum Edit {
-    Set(usize, u8),
-    Truncate(usize),
-    Insert(usize, u8),
-    Remove(usize),
-}
+#[path = "support/byte_edits.rs"]
+mod byte_edits;
+use byte_edits::{apply as apply_anywhere, Edit};
 
 fn edits() -> impl Strategy<Value = Vec<Edit>> {
-    let edit = prop_oneof![
-        (any::<usize>(), any::<u8>()).prop_map(|(i, b)| Edit::Set(i, b)),
-        any::<usize>().prop_map(Edit::Truncate),
-        (any::<usize>(), any::<u8>()).prop_map(|(i, b)| Edit::Insert(i, b)),
-        any::<usize>().prop_map(Edit::Remove),
-    ];
-    proptest::collection::vec(edit, 1..8)
+    byte_edits::edits([1, 1, 1, 1], 8)
 }
 
 fn apply(bytes: &[u8], edits: &[Edit]) -> Vec<u8> {
-    let mut out = bytes.to_vec();
-    for e in edits {
-        let n = out.len().max(1);
-        match *e {
-            Edit::Set(i, b) if !out.is_empty() => out[i % n] = b,
-            Edit::Truncate(i) => out.truncate(i % n),
-            Edit::Insert(i, b) => out.insert(i % (out.len() + 1), b),
-            Edit::Remove(i) if !out.is_empty() => {
-                out.remove(i % n);
-            }
-            _ => {}
-        }
-    }
-    out
+    apply_anywhere(bytes, usize::MAX, edits)
 }
 
 /// An action component: anything from ordinary values to NaN and huge magnitudes.

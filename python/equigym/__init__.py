@@ -8,21 +8,12 @@ Importing the package registers the gymnasium ids (gymnasium 1.x has no plugin e
 >>> envs = gymnasium.make_vec("EquiLift-v0", num_envs=16)   # B envs stepped in Rust
 """
 
+from equigym import errors
 from equigym._core import TASK_IDS, DiffusionPolicy, EnvSpec, Expert, __version__
 from equigym._core import Env as CoreEnv
 from equigym.assets import asset_path, policy_path, urdf_path
 from equigym.envs import ENV_IDS, EquiEnv, register_envs
-from equigym.errors import (
-    EquigymError,
-    EquigymIOError,
-    InvalidInputError,
-    InvalidStateError,
-    MissingFileError,
-    PhysicsError,
-    PolicyError,
-    ResetNeeded,
-    UrdfError,
-)
+from equigym.errors import *  # noqa: F403 (the exception classes, listed once in errors.__all__)
 from equigym.latent import LATENT_ENV_IDS, EquiLatentEnv, EquiLatentVectorEnv, register_latent_envs
 from equigym.rendering import save_gif
 from equigym.symmetry import Symmetry, measure_breaking
@@ -43,19 +34,11 @@ __all__ = [
     "EquiLatentEnv",
     "EquiLatentVectorEnv",
     "EquiVectorEnv",
-    "EquigymError",
-    "EquigymIOError",
     "Expert",
-    "InvalidInputError",
-    "InvalidStateError",
-    "MissingFileError",
-    "PhysicsError",
-    "PolicyError",
-    "ResetNeeded",
     "Symmetry",
     "SymmetryWrapper",
     "TerminateOnSuccess",
-    "UrdfError",
+    *errors.__all__,
     "__version__",
     "asset_path",
     "measure_breaking",

@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import json
 from collections import defaultdict
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -99,6 +100,25 @@ def mean_se(values: list[float], digits: int) -> str:
     return f"{np.mean(values):.{digits}f} +- {np.std(values, ddof=1) / np.sqrt(len(values)):.{digits}f}"
 
 
+def _task_table(
+    tasks: list[str], columns: list[str], lead: dict[str, Callable[[str], str]], cell: Callable[[str, int], str]
+) -> list[str]:
+    """A markdown table, one row per task: the ``lead`` columns (header -> cell of a task), then
+    one column per header in ``columns`` (cell of a task and the column's index)."""
+    lines = [
+        "| task | " + "".join(f"{h} | " for h in lead) + " | ".join(columns) + " |",
+        "|---|" + "---:|" * (len(lead) + len(columns)),
+    ]
+    for t in tasks:
+        lines.append(
+            f"| {t} | "
+            + "".join(f"{f(t)} | " for f in lead.values())
+            + " | ".join(cell(t, i) for i in range(len(columns)))
+            + " |"
+        )
+    return lines
+
+
 def write_report(root: str | Path | list[str | Path], out: str | Path, base: dict[str, float] | None = None) -> str:
     runs = load_runs(root)
     base = {**load_base(root), **(base or {})}
@@ -127,42 +147,34 @@ def write_report(root: str | Path | list[str | Path], out: str | Path, base: dic
         ("Peak success (the paper's Table 1 metric)", lambda rates: max(rates)),
         ("Final success (mean of the last two evaluations)", lambda rates: float(np.mean(rates[-2:]))),
     ):
-        lines += [
-            f"**{title}**",
-            "",
-            "| task | base policy | " + " | ".join(labels[m] for m in methods) + " |",
-            "|---|---:|" + "---:|" * len(methods),
-        ]
-        for t in tasks:
-            cells = []
-            for m in methods:
-                rs = runs.get((t, m), [])
-                if rs:
-                    steps = int(min(run["rows"][-1]["env_steps"] for run in rs))
-                    cells.append(
-                        f"{cell([stat([r['success_rate'] for r in run['rows']]) for run in rs])} ({len(rs)} seed{'s' if len(rs) != 1 else ''}, {steps:,} steps)"
-                    )
-                else:
-                    cells.append("-")
+
+        def success(t: str, m: str, stat=stat) -> str:
+            rs = runs.get((t, m), [])
+            if not rs:
+                return "-"
+            steps = int(min(run["rows"][-1]["env_steps"] for run in rs))
+            rates = cell([stat([r["success_rate"] for r in run["rows"]]) for run in rs])
+            return f"{rates} ({len(rs)} seed{'s' if len(rs) != 1 else ''}, {steps:,} steps)"
+
+        def base_cell(t: str) -> str:
             b = base.get(t)
-            lines.append(f"| {t} | {'-' if b is None else f'{b:.3f}'} | " + " | ".join(cells) + " |")
+            return "-" if b is None else f"{b:.3f}"
+
+        lines += [f"**{title}**", ""]
+        lines += _task_table(
+            tasks, [labels[m] for m in methods], {"base policy": base_cell}, lambda t, i: success(t, methods[i])
+        )
         lines.append("")
+
     # Value divergence: rewards are in [-chunk, 0], so a sampled batch's mean Q above 0 comes
     # from the entropy bonus or from overestimation; report each method's largest and last value.
-    lines += [
-        "Mean Q of sampled replay batches (soft Q, entropy bonus included): largest / last, mean over seeds.",
-        "",
-        "| task | " + " | ".join(labels[m] for m in methods) + " |",
-        "|---|" + "---:|" * len(methods),
-    ]
-    for t in tasks:
-        cells = []
-        for m in methods:
-            rs = runs.get((t, m), [])
-            qs = [[r["mean_q"] for r in run["rows"] if np.isfinite(r["mean_q"])] for run in rs]
-            qs = [q for q in qs if q]
-            cells.append(f"{np.mean([max(q) for q in qs]):.1f} / {np.mean([q[-1] for q in qs]):.1f}" if qs else "-")
-        lines.append(f"| {t} | " + " | ".join(cells) + " |")
+    def mean_q(t: str, i: int) -> str:
+        qs = [[r["mean_q"] for r in run["rows"] if np.isfinite(r["mean_q"])] for run in runs.get((t, methods[i]), [])]
+        qs = [q for q in qs if q]
+        return f"{np.mean([max(q) for q in qs]):.1f} / {np.mean([q[-1] for q in qs]):.1f}" if qs else "-"
+
+    lines += ["Mean Q of sampled replay batches (soft Q, entropy bonus included): largest / last, mean over seeds.", ""]
+    lines += _task_table(tasks, [labels[m] for m in methods], {}, mean_q)
     lines += _cost_table(runs, tasks, methods, labels)
     text = "\n".join(lines) + "\n"
     (out / "table.md").write_text(text)

@@ -27,39 +27,17 @@ fn config() -> Config {
     Config { cases, failure_persistence: None, ..Config::default() }
 }
 
-#[derive(Clone, Debug)]
-enum Edit {
-    Set(usize, u8),
-    Truncate(usize),
-    Insert(usize, u8),
-    Remove(usize),
-}
+#[path = "../../envs/tests/support/byte_edits.rs"]
+mod byte_edits;
+use byte_edits::Edit;
 
+/// Edits, and whether they aim at the header.
 fn edits() -> impl Strategy<Value = (bool, Vec<Edit>)> {
-    let edit = prop_oneof![
-        4 => (any::<usize>(), any::<u8>()).prop_map(|(i, b)| Edit::Set(i, b)),
-        1 => any::<usize>().prop_map(Edit::Truncate),
-        2 => (any::<usize>(), any::<u8>()).prop_map(|(i, b)| Edit::Insert(i, b)),
-        2 => any::<usize>().prop_map(Edit::Remove),
-    ];
-    (any::<bool>(), proptest::collection::vec(edit, 1..6))
+    (any::<bool>(), byte_edits::edits([4, 1, 2, 2], 6))
 }
 
 fn apply(bytes: &[u8], header: bool, edits: &[Edit]) -> Vec<u8> {
-    let mut out = bytes.to_vec();
-    for e in edits {
-        let n = if header { out.len().clamp(1, HEADER_FOCUS) } else { out.len().max(1) };
-        match *e {
-            Edit::Set(i, b) if !out.is_empty() => out[i % n] = b,
-            Edit::Truncate(i) => out.truncate(i % n),
-            Edit::Insert(i, b) => out.insert(i % (n.min(out.len()) + 1), b),
-            Edit::Remove(i) if !out.is_empty() => {
-                out.remove(i % n);
-            }
-            _ => {}
-        }
-    }
-    out
+    byte_edits::apply(bytes, if header { HEADER_FOCUS } else { usize::MAX }, edits)
 }
 
 fn drive(policy: DiffusionPolicy) -> Result<(), TestCaseError> {
