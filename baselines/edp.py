@@ -514,7 +514,7 @@ def evaluate(
     task = meta["task"]
     env_kwargs.setdefault("variant", meta.get("variant") or None)
     return _core.evaluate_base(
-        task, policy=str(policy_path), episodes=episodes, seed=seed, scale=scale, threads=threads, **env_kwargs
+        task, policy=str(policy_path), episodes=episodes, seed=seed, scale=scale, threads=threads, env=env_kwargs
     )
 
 

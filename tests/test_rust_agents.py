@@ -146,7 +146,7 @@ def test_sac_gradients_match_pytorch(method):
 
 
 # -- the run entry point ---------------------------------------------------------------------
-SHORT = dict(eval_every=64, eval_episodes=2, horizon=32, progress=False)
+SHORT = dict(eval_every=64, eval_episodes=2, env={"horizon": 32}, progress=False)
 
 
 def read(path):
@@ -193,7 +193,7 @@ def test_bad_arguments_raise_value_errors(tmp_path):
     with pytest.raises(ValueError, match="preset"):
         _core.steer_run("dsrl", "lift", 0, 16, str(tmp_path), preset="gpu")
     with pytest.raises(ValueError, match="controller"):
-        _core.steer_run("dsrl", "lift", 0, 16, str(tmp_path), controller="torque")
+        _core.steer_run("dsrl", "lift", 0, 16, str(tmp_path), env={"controller": "torque"})
     # a target entropy the 40-d actor cannot reach (at most 27.3 nats) would grow alpha without end
     with pytest.raises(ValueError, match="out of reach"):
         _core.steer_run("dsrl", "lift", 0, 16, str(tmp_path), target_entropy=27.5)
@@ -287,7 +287,7 @@ def test_compare_puts_runs_beside_their_controls_on_the_same_starts(tmp_path):
     assert "17/24 = 0.708" in final and "0.75, 0.67" in final
     untrained = next(line for line in text.splitlines() if "untrained actor" in line)
     assert "3/8 = 0.375" in untrained
-    base = [_core.evaluate_base("lift", seed=s, episodes=4, horizon=60, policy=policy) for s in (0, 1)]
+    base = [_core.evaluate_base("lift", seed=s, episodes=4, env={"horizon": 60}, policy=policy) for s in (0, 1)]
     wins = sum(b["successes"] for b in base)
     base_row = next(line for line in text.splitlines() if line.startswith("| base policy"))
     assert f"{wins}/8 = " in base_row

@@ -55,7 +55,7 @@ def test_rust_errors_arrive_as_the_python_classes(tmp_path):
         equigym.CoreEnv("lift", horizn=5)
     with pytest.raises(equigym.InvalidInputError, match="not finite"):
         equigym.CoreEnv("lift", init_joint_noise=float("nan"))
-    with pytest.raises(equigym.InvalidInputError, match="unknown variant"):
+    with pytest.raises(equigym.InvalidInputError, match="controller must be 'joint' or 'cartesian', got 'telepathic'"):
         equigym.CoreEnv("lift", controller="telepathic")
     # An option a class cannot honour is refused, not dropped.
     with pytest.raises(equigym.InvalidInputError, match="reward must be 'sparse'"):
@@ -70,7 +70,7 @@ def test_options_reach_every_environment_class():
     for spec in (single.spec, vec.spec):
         assert spec.horizon == 7 and spec.control_period == pytest.approx(6 / 240)
     kwargs = single.__getnewargs_ex__()[1]
-    assert kwargs["physics"]["cartesian_control"] is True and kwargs["physics"]["joint_limits"] is False
+    assert kwargs["controller"] == "cartesian" and kwargs["physics"]["joint_limits"] is False
 
 
 @pytest.mark.parametrize("env_id", ["EquiLift-v0", "EquiLift-Latent-v0"])

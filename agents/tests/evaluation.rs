@@ -13,7 +13,7 @@ use equigym_wrappers::DiffusionPolicy;
 fn config(threads: usize) -> RunConfig {
     let mut c = RunConfig::new(Method::Dsrl, "lift", 5, 0, std::env::temp_dir()).unwrap();
     c.eval_episodes = 8;
-    c.horizon = Some(120);
+    c.env.horizon = Some(120);
     c.threads = threads;
     c
 }

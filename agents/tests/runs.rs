@@ -28,7 +28,7 @@ fn tiny(method: Method, out: &Path) -> RunConfig {
     };
     c.eval_every = 128;
     c.eval_episodes = 3;
-    c.horizon = Some(48);
+    c.env.horizon = Some(48);
     c
 }
 

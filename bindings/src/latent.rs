@@ -1,127 +1,17 @@
-//! Bindings of the diffusion-policy runtime and the latent-action environment.
-
-use std::path::PathBuf;
-use std::sync::Arc;
+//! Bindings of the latent-action environments, single and batched (the policy they decode with
+//! is `policy.rs`).
 
 use equigym_envs::AutoresetMode;
 use equigym_envs::Env as RustEnv;
 use equigym_wrappers::latent::{latent_batch, LatentBatchEnv, LatentEnv as RustLatentEnv, DEFAULT_LATENT_BOUND};
-use equigym_wrappers::DiffusionPolicy as RustPolicy;
-use numpy::ndarray::Array3;
-use numpy::{
-    IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn,
-    PyUntypedArrayMethods,
-};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyTuple};
 
 use crate::errors::{invalid_input, to_py};
 use crate::options::{env_config, options_kwargs};
+use crate::policy::{ddim_steps, policy_object, DiffusionPolicy};
 use crate::{info_dict, Spec};
-
-/// An exported equivariant diffusion policy, run in Rust (batched deterministic DDIM).
-/// Keeps the bytes of its file, so it pickles without the file.
-#[pyclass(module = "equigym._core", name = "DiffusionPolicy", frozen)]
-pub struct DiffusionPolicy {
-    inner: Arc<RustPolicy>,
-    bytes: Arc<Vec<u8>>,
-    origin: String,
-}
-
-#[pymethods]
-impl DiffusionPolicy {
-    /// Load from a file path, or from the bytes of a policy file (`origin` names it in errors).
-    #[new]
-    #[pyo3(signature = (source, origin=None))]
-    fn new(source: &Bound<'_, PyAny>, origin: Option<String>) -> PyResult<Self> {
-        let (bytes, origin) = match source.cast::<PyBytes>() {
-            Ok(b) => (b.as_bytes().to_vec(), origin.unwrap_or_else(|| "<bytes>".into())),
-            Err(_) => {
-                let path: PathBuf = source.extract()?;
-                (RustPolicy::read_file(&path).map_err(to_py)?, origin.unwrap_or_else(|| path.display().to_string()))
-            }
-        };
-        let inner = RustPolicy::from_bytes(&bytes, &origin).map_err(to_py)?;
-        Ok(Self { inner: Arc::new(inner), bytes: Arc::new(bytes), origin })
-    }
-    /// Pickling: the file's bytes and its name.
-    fn __getnewargs__<'py>(&self, py: Python<'py>) -> (Bound<'py, PyBytes>, String) {
-        (PyBytes::new(py, &self.bytes), self.origin.clone())
-    }
-    #[getter]
-    fn task(&self) -> &str {
-        &self.inner.task
-    }
-    #[getter]
-    fn chunk_len(&self) -> usize {
-        self.inner.chunk_len
-    }
-    #[getter]
-    fn obs_dim(&self) -> usize {
-        self.inner.obs_dim()
-    }
-    #[getter]
-    fn action_dim(&self) -> usize {
-        self.inner.action_dim()
-    }
-    #[getter]
-    fn group(&self) -> &str {
-        &self.inner.group
-    }
-    #[getter]
-    fn default_ddim_steps(&self) -> usize {
-        self.inner.default_ddim_steps
-    }
-    #[getter]
-    fn metadata(&self) -> std::collections::HashMap<String, String> {
-        self.inner.metadata.clone()
-    }
-    /// Denoise: `obs` (B, obs_dim) and `latent` (B, action_dim) -> chunks (B, chunk_len, 10);
-    /// `precision` "f32" (default) or "f64" is the network's arithmetic.
-    #[pyo3(signature = (obs, latent, steps=None, precision=None))]
-    fn sample<'py>(
-        &self,
-        py: Python<'py>,
-        obs: PyReadonlyArrayDyn<'py, f64>,
-        latent: PyReadonlyArrayDyn<'py, f64>,
-        steps: Option<usize>,
-        precision: Option<&str>,
-    ) -> PyResult<Bound<'py, PyArray3<f64>>> {
-        let precision: equigym_wrappers::edp::Precision = match precision {
-            Some(p) => p.parse().map_err(to_py)?,
-            None => self.inner.precision,
-        };
-        let (od, ad) = (self.inner.obs_dim(), self.inner.action_dim());
-        let (os, ls) = (obs.shape().to_vec(), latent.shape().to_vec());
-        if os.len() != 2 || ls.len() != 2 || os[1] != od || ls[1] != ad || os[0] != ls[0] {
-            return Err(invalid_input(format!(
-                "expected obs (B, {od}) and latent (B, {ad}) with the same B, got {os:?} and {ls:?}"
-            )));
-        }
-        let o: Vec<f64> = obs.as_array().iter().copied().collect();
-        let w: Vec<f64> = latent.as_array().iter().copied().collect();
-        let steps = steps.unwrap_or(self.inner.default_ddim_steps);
-        let mut out = vec![0.0; w.len()];
-        let policy = self.inner.clone();
-        py.detach(|| policy.sample_with(precision, &o, &w, steps, &mut out)).map_err(to_py)?;
-        let chunk = self.inner.chunk_len;
-        let arr = Array3::from_shape_vec((ls[0], chunk, ad / chunk), out).map_err(|e| invalid_input(e.to_string()))?;
-        Ok(arr.into_pyarray(py))
-    }
-}
-
-/// A loaded `DiffusionPolicy` (shared) or a path to load one from.
-fn policy_object(py: Python<'_>, policy: &Bound<'_, PyAny>) -> PyResult<Py<DiffusionPolicy>> {
-    match policy.cast::<DiffusionPolicy>() {
-        Ok(p) => Ok(p.clone().unbind()),
-        Err(_) => Py::new(py, DiffusionPolicy::new(policy, None)?),
-    }
-}
-
-/// `ddim_steps` or the policy's default.
-fn ddim_steps(policy: &RustPolicy, steps: Option<usize>) -> usize {
-    steps.unwrap_or(policy.default_ddim_steps)
-}
 
 /// A task whose action is the diffusion policy's latent noise (see `equigym.latent`).
 #[pyclass(module = "equigym._core", name = "LatentEnv")]

@@ -12,6 +12,7 @@
 mod errors;
 mod latent;
 mod options;
+mod policy;
 mod steer;
 mod symmetry;
 mod vector;
@@ -31,8 +32,8 @@ fn info_dict<'py>(py: Python<'py>, evaluation: &Evaluation) -> PyResult<Bound<'p
     d.set_item("success", evaluation.success)?;
     // Stable-Baselines3 reads this key for success-rate logging.
     d.set_item("is_success", evaluation.success)?;
-    for (k, v) in &evaluation.info {
-        d.set_item(*k, *v)?;
+    for (k, v) in evaluation.measures.terms() {
+        d.set_item(k, v)?;
     }
     Ok(d)
 }
@@ -266,7 +267,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Spec>()?;
     m.add_class::<Expert>()?;
     m.add_class::<symmetry::TaskSymmetry>()?;
-    m.add_class::<latent::DiffusionPolicy>()?;
+    m.add_class::<policy::DiffusionPolicy>()?;
     m.add_class::<latent::LatentEnv>()?;
     m.add_class::<latent::LatentVecEnv>()?;
     m.add_class::<vector::VecEnv>()?;

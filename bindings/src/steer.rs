@@ -1,6 +1,5 @@
 //! Binding of the Rust steering agents (`equigym-agents`): one run, the GIL released.
 
-use equigym_envs::Controller;
 use std::path::PathBuf;
 
 use equigym_agents::{evaluate_base as base_evaluation, run, Method, Preset, RunConfig};
@@ -8,6 +7,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::errors::to_py;
+use crate::options::env_options;
 
 /// The network and schedule preset `name` (`"cpu"` or `"paper"`) as a dict: width, layers,
 /// utd, utd_square (None where it is utd), batch, n_envs, warmup, ent_init. The one home of the
@@ -29,8 +29,10 @@ pub fn steer_preset<'py>(py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyD
 
 /// Train one steering agent in Rust (see `python -m equigym.steer run --help`); returns a dict
 /// with the run directory, the log rows, step counts, seconds and a hash of the final weights.
+/// `env` holds the environments' options (their keyword arguments: joint_limits, controller,
+/// horizon, variant, physics, ...).
 #[pyfunction]
-#[pyo3(signature = (method, task, seed, steps, out, *, threads=1, preset="cpu", joint_limits=true, controller=None, eval_every=2000, eval_episodes=50, policy=None, ent_init=None, horizon=None, terminate_on_success=false, noise_aliased=false, target_entropy=None, prior_kl=None, reward_scale=None, select=None, progress=false, stop_after_evals=None))]
+#[pyo3(signature = (method, task, seed, steps, out, *, threads=1, preset="cpu", env=None, eval_every=2000, eval_episodes=50, policy=None, ent_init=None, terminate_on_success=false, noise_aliased=false, target_entropy=None, prior_kl=None, reward_scale=None, select=None, progress=false, stop_after_evals=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn steer_run<'py>(
     py: Python<'py>,
@@ -41,13 +43,11 @@ pub fn steer_run<'py>(
     out: PathBuf,
     threads: usize,
     preset: &str,
-    joint_limits: bool,
-    controller: Option<&str>,
+    env: Option<&Bound<'py, PyDict>>,
     eval_every: usize,
     eval_episodes: usize,
     policy: Option<PathBuf>,
     ent_init: Option<f64>,
-    horizon: Option<usize>,
     terminate_on_success: bool,
     noise_aliased: bool,
     target_entropy: Option<f64>,
@@ -60,13 +60,11 @@ pub fn steer_run<'py>(
     let mut cfg = RunConfig::new(Method::parse(method).map_err(to_py)?, task, seed, steps, out).map_err(to_py)?;
     cfg.threads = threads;
     cfg.preset = Preset::named(preset).map_err(to_py)?;
-    cfg.joint_limits = joint_limits;
-    cfg.controller = parse_controller(controller)?;
+    cfg.env = env_options(env)?;
     cfg.eval_every = eval_every;
     cfg.eval_episodes = eval_episodes;
     cfg.policy = policy;
     cfg.ent_init = ent_init;
-    cfg.horizon = horizon;
     cfg.terminate_on_success = terminate_on_success;
     cfg.noise_aliased = noise_aliased;
     cfg.target_entropy = target_entropy;
@@ -97,18 +95,13 @@ pub fn steer_run<'py>(
     Ok(d)
 }
 
-/// `None` keeps the environment's default controller.
-fn parse_controller(controller: Option<&str>) -> PyResult<Option<Controller>> {
-    controller.map(|c| c.parse::<Controller>()).transpose().map_err(to_py)
-}
-
 /// The base policy on the pinned evaluation starts (seeds `EVAL_SEED + k`) with latent noise
 /// N(0, scale^2 I) clipped to the bound, as a steering run of the same settings evaluates its
 /// actor (`equigym_agents::evaluation`); `seed` seeds the noise streams. Returns a dict: task,
 /// policy, scale, seed, first_start, successes / episodes / success_rate / low / high (Wilson
 /// 95 %), and `outcomes`, one bool per episode in start order.
 #[pyfunction]
-#[pyo3(signature = (task, *, seed=0, episodes=200, scale=1.0, policy=None, controller=None, joint_limits=true, horizon=None, variant=None, threads=1))]
+#[pyo3(signature = (task, *, seed=0, episodes=200, scale=1.0, policy=None, env=None, threads=1))]
 #[allow(clippy::too_many_arguments)]
 pub fn evaluate_base<'py>(
     py: Python<'py>,
@@ -117,19 +110,13 @@ pub fn evaluate_base<'py>(
     episodes: usize,
     scale: f64,
     policy: Option<PathBuf>,
-    controller: Option<&str>,
-    joint_limits: bool,
-    horizon: Option<usize>,
-    variant: Option<String>,
+    env: Option<&Bound<'py, PyDict>>,
     threads: usize,
 ) -> PyResult<Bound<'py, PyDict>> {
     let mut cfg = RunConfig::new(Method::Dsrl, task, seed, 0, PathBuf::new()).map_err(to_py)?;
     cfg.eval_episodes = episodes;
     cfg.policy = policy;
-    cfg.controller = parse_controller(controller)?;
-    cfg.joint_limits = joint_limits;
-    cfg.horizon = horizon;
-    cfg.variant = variant;
+    cfg.env = env_options(env)?;
     cfg.threads = threads;
     let e = py.detach(|| base_evaluation(&cfg, scale)).map_err(to_py)?;
     let d = PyDict::new(py);

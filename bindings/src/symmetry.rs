@@ -11,6 +11,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use crate::errors::{invalid_input, to_py};
+use crate::options::env_options;
 use crate::{layout_list, Env};
 
 /// A task's group action on observations, actions, action chunks, latent noise and states.
@@ -210,16 +211,15 @@ impl TaskSymmetry {
     }
 }
 
-/// Measure a task's symmetry breaking (see `equigym_wrappers::breaking`); returns JSON.
+/// Measure a task's symmetry breaking (see `equigym_wrappers::breaking`) in the environment
+/// that the options `env` (the environments' keyword arguments) build; returns JSON.
 #[pyfunction]
-#[pyo3(signature = (task, *, variant=None, joint_limits=true, cartesian_control=false, group_order=8, episodes=20, states_per_episode=4, probe_steps=1, replay_slack=30, seed=0))]
+#[pyo3(signature = (task, *, env=None, group_order=8, episodes=20, states_per_episode=4, probe_steps=1, replay_slack=30, seed=0))]
 #[allow(clippy::too_many_arguments)]
 pub fn measure_symmetry_breaking(
     py: Python<'_>,
     task: &str,
-    variant: Option<String>,
-    joint_limits: bool,
-    cartesian_control: bool,
+    env: Option<&Bound<'_, PyDict>>,
     group_order: usize,
     episodes: usize,
     states_per_episode: usize,
@@ -229,9 +229,7 @@ pub fn measure_symmetry_breaking(
 ) -> PyResult<String> {
     let config = BreakingConfig {
         task: task.into(),
-        variant,
-        joint_limits,
-        cartesian_control,
+        env: env_options(env)?,
         group_order,
         episodes,
         states_per_episode,

@@ -15,7 +15,7 @@ use crate::options::EnvSpec;
 use crate::rng::EpisodeRng;
 use crate::robot::{load_urdf, parse_urdf, IkReport, RobotModel};
 use crate::scene::Scene;
-use crate::tasks::{make_task, Evaluation, RewardKind, Task};
+use crate::tasks::{make_task, Evaluation, Task};
 
 /// The robot description shipped with equigym.
 pub const PANDA_URDF: &str = include_str!("../../assets/panda/panda.urdf");
@@ -109,7 +109,8 @@ impl Env {
                 robot.dof()
             )));
         }
-        let mut scene = Scene::new(robot, spec.robot_base, &spec.home_q, spec.table, config.physics.clone())?;
+        let mut scene =
+            Scene::new(robot, spec.robot_base, &spec.home_q, spec.table, config.physics.clone(), config.controller)?;
         task.load_scene(&mut scene);
         let horizon = match config.horizon {
             Some(0) => return Err(EnvError::InvalidConfig("horizon must be positive".into())),
@@ -269,10 +270,7 @@ impl Env {
         }
         self.steps += 1;
         let evaluation = self.task.evaluate(&self.scene);
-        let reward = match self.config.reward {
-            RewardKind::Sparse => evaluation.success as u8 as f64,
-            RewardKind::Dense => self.task.dense_reward(&self.scene),
-        };
+        let reward = evaluation.reward(self.config.reward);
         let truncated = self.steps >= self.horizon;
         if truncated {
             self.in_episode = false;

@@ -17,6 +17,7 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use crate::error::{EnvError, Result};
 use crate::layout::{Layout, ACTION_DIM};
+pub use crate::robot::Controller;
 use crate::tasks::{RewardKind, TaskOptions};
 use crate::PhysicsConfig;
 
@@ -29,6 +30,8 @@ pub struct EnvConfig {
     pub task: String,
     pub reward: RewardKind,
     pub physics: PhysicsConfig,
+    /// The arm controller.
+    pub controller: Controller,
     /// A URDF to load instead of the shipped Panda.
     pub urdf: Option<PathBuf>,
     /// Std of the Gaussian noise added to the home joint configuration at reset (rad).
@@ -44,42 +47,11 @@ impl EnvConfig {
             task: task.to_string(),
             reward: RewardKind::Sparse,
             physics: PhysicsConfig::default(),
+            controller: Controller::Joint,
             urdf: None,
             init_joint_noise: DEFAULT_INIT_JOINT_NOISE,
             horizon: None,
             task_options: TaskOptions::default(),
-        }
-    }
-}
-
-/// Which arm controller turns absolute pose targets into motion.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Controller {
-    /// IK, then joint-space interpolation at the joints' speed limits (the default).
-    Joint,
-    /// Straight-line TCP paths at bounded speed; without joint limits it commutes with rotations
-    /// of the scene about a vertical axis.
-    Cartesian,
-}
-
-impl Controller {
-    /// The option's spelling (`"joint"`, `"cartesian"`).
-    pub fn name(self) -> &'static str {
-        match self {
-            Controller::Joint => "joint",
-            Controller::Cartesian => "cartesian",
-        }
-    }
-}
-
-impl std::str::FromStr for Controller {
-    type Err = EnvError;
-    fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "joint" => Ok(Controller::Joint),
-            "cartesian" => Ok(Controller::Cartesian),
-            other => Err(EnvError::InvalidConfig(format!("controller must be 'joint' or 'cartesian', got '{other}'"))),
         }
     }
 }
@@ -96,7 +68,7 @@ pub struct EnvOptions {
     pub urdf: Option<PathBuf>,
     /// Enforce the arm's joint limits (`None`: the value in `physics`, on by default).
     pub joint_limits: Option<bool>,
-    /// The arm controller (`None`: the one `physics` selects, joint-space by default).
+    /// The arm controller (`None`: joint-space).
     pub controller: Option<Controller>,
     /// Std of the noise added to the home joint configuration at reset (rad).
     pub init_joint_noise: f64,
@@ -138,15 +110,20 @@ fn reward_from_str<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Rewar
 }
 
 impl EnvOptions {
+    /// Whether the arm's joint limits are enforced: the option, else the physics setting.
+    pub fn joint_limits_on(&self) -> bool {
+        self.joint_limits.unwrap_or(self.physics.joint_limits)
+    }
+
+    /// The arm controller: the option, else joint-space.
+    pub fn arm_controller(&self) -> Controller {
+        self.controller.unwrap_or_default()
+    }
+
     /// The configuration of `task` with these options.
     pub fn into_config(self, task: &str) -> Result<EnvConfig> {
-        let mut physics = self.physics;
-        if let Some(on) = self.joint_limits {
-            physics.joint_limits = on;
-        }
-        if let Some(controller) = self.controller {
-            physics.cartesian_control = controller == Controller::Cartesian;
-        }
+        let mut physics = self.physics.clone();
+        physics.joint_limits = self.joint_limits_on();
         if self.horizon == Some(0) {
             return Err(EnvError::InvalidConfig("horizon must be positive".into()));
         }
@@ -154,6 +131,7 @@ impl EnvOptions {
             task: task.to_string(),
             reward: self.reward,
             physics,
+            controller: self.arm_controller(),
             urdf: self.urdf,
             init_joint_noise: self.init_joint_noise,
             horizon: self.horizon,
@@ -170,7 +148,7 @@ impl EnvOptions {
             reward: config.reward,
             urdf: config.urdf.clone(),
             joint_limits: None,
-            controller: None,
+            controller: Some(config.controller),
             init_joint_noise: config.init_joint_noise,
             horizon: config.horizon,
             physics: config.physics.clone(),
@@ -222,7 +200,7 @@ mod tests {
         let mut options =
             EnvOptions { joint_limits: Some(false), controller: Some(Controller::Cartesian), ..Default::default() };
         let config = options.clone().into_config("lift").unwrap();
-        assert!(!config.physics.joint_limits && config.physics.cartesian_control);
+        assert!(!config.physics.joint_limits && config.controller == Controller::Cartesian);
         options.horizon = Some(0);
         assert!(matches!(options.into_config("lift"), Err(EnvError::InvalidConfig(_))));
     }

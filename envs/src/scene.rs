@@ -18,7 +18,7 @@ use crate::error::{EnvError, Result};
 use crate::math::{from_pose, from_vector, to_pose, to_vector};
 use crate::robot::controller::{seed_bank, worse, ControlContext};
 use crate::robot::kinematics::MAX_DOF;
-use crate::robot::{Controller, IkOptions, IkReport, RobotModel, RobotRig};
+use crate::robot::{ActiveController, Controller, IkOptions, IkReport, RobotModel, RobotRig};
 use crate::world::{build_world, PhysicsConfig, TableSpec, WorldColliders};
 
 pub use crate::robot::rig::link_shape;
@@ -37,7 +37,7 @@ pub struct Scene {
     /// The table's and the floor's colliders.
     pub statics: WorldColliders,
     pub config: PhysicsConfig,
-    controller: Controller,
+    controller: ActiveController,
     /// Commanded finger travel (half the opening), rate limited.
     finger_cmd: f64,
     ik: IkOptions,
@@ -49,14 +49,14 @@ pub struct Scene {
 #[derive(Serialize, Deserialize)]
 struct SceneState {
     world: PhysicsWorld,
-    controller: Controller,
+    controller: ActiveController,
     finger_cmd: f64,
 }
 
 #[derive(Serialize)]
 struct SceneStateRef<'a> {
     world: &'a PhysicsWorld,
-    controller: &'a Controller,
+    controller: &'a ActiveController,
     finger_cmd: f64,
 }
 
@@ -69,6 +69,7 @@ impl Scene {
         home: &[f64],
         table: TableSpec,
         config: PhysicsConfig,
+        controller: Controller,
     ) -> Result<Self> {
         config.validate()?;
         let (mut world, statics) = build_world(&config, &table);
@@ -80,7 +81,7 @@ impl Scene {
         rig.clamp_to_limits(&mut q);
         let ctx =
             ControlContext { model: &robot, base: &base, ik: &ik, seeds: &seeds, period: config.control_period() };
-        let controller = Controller::new(config.cartesian_control, &ctx, &q);
+        let controller = ActiveController::new(controller, &ctx, &q);
         Ok(Self { world, rig, statics, config, controller, finger_cmd: open, ik, seeds })
     }
 
@@ -92,7 +93,7 @@ impl Scene {
         &self.rig.base
     }
 
-    pub fn controller(&self) -> &Controller {
+    pub fn controller(&self) -> &ActiveController {
         &self.controller
     }
 
@@ -165,7 +166,7 @@ impl Scene {
         let dof = self.rig.dof();
         let mut q_meas = [0.0; MAX_DOF];
         self.rig.joint_positions(&self.world, &mut q_meas[..dof]);
-        let mut controller = std::mem::replace(&mut self.controller, Controller::Joint(Default::default()));
+        let mut controller = std::mem::replace(&mut self.controller, ActiveController::Joint(Default::default()));
         let ctx = ControlContext {
             model: &self.rig.model,
             base: &self.rig.base,
@@ -296,10 +297,7 @@ impl Scene {
     pub fn restore(&mut self, bytes: &[u8]) -> Result<()> {
         let state: SceneState =
             postcard::from_bytes(bytes).map_err(|e| EnvError::InvalidState(format!("cannot decode the scene: {e}")))?;
-        let same_kind = matches!(
-            (&state.controller, &self.controller),
-            (Controller::Joint(_), Controller::Joint(_)) | (Controller::Cartesian(_), Controller::Cartesian(_))
-        );
+        let same_kind = state.controller.kind() == self.controller.kind();
         if !same_kind
             || state.controller.dof() != self.rig.dof()
             || !state.finger_cmd.is_finite()

@@ -117,10 +117,6 @@ pub struct PhysicsConfig {
     pub joint_limits: bool,
     /// Whether non-adjacent arm links collide with each other.
     pub self_collision: bool,
-    /// Cartesian arm control instead of joint-space interpolation (see
-    /// [`crate::robot::controller`]); with `joint_limits` off it makes every control step
-    /// commute with rotations of the scene about a vertical axis.
-    pub cartesian_control: bool,
     /// Rebuild the arm's joint-space mass matrices before every solver substep (rapier's own
     /// behaviour) instead of once per physics step (the patched rapier's
     /// `MultibodyMassMatrixUpdate::EveryStep`; see the module docs and
@@ -148,7 +144,6 @@ impl Default for PhysicsConfig {
             finger_speed: 0.2,
             joint_limits: true,
             self_collision: true,
-            cartesian_control: false,
             mass_matrix_every_substep: false,
         }
     }

@@ -134,9 +134,7 @@ class TaskSymmetry:
 def measure_symmetry_breaking(
     task: str,
     *,
-    variant: str | None = None,
-    joint_limits: bool = True,
-    cartesian_control: bool = False,
+    env: dict[str, Any] | None = None,
     group_order: int = 8,
     episodes: int = 20,
     states_per_episode: int = 4,
@@ -289,13 +287,11 @@ def steer_run(
     *,
     threads: int = 1,
     preset: Literal["cpu", "paper"] = "cpu",
-    joint_limits: bool = True,
-    controller: Literal["joint", "cartesian"] | None = None,
+    env: dict[str, Any] | None = None,
     eval_every: int = 2000,
     eval_episodes: int = 50,
     policy: str | PathLike[str] | None = None,
     ent_init: float | None = None,
-    horizon: int | None = None,
     terminate_on_success: bool = False,
     noise_aliased: bool = False,
     target_entropy: float | None = None,
@@ -315,14 +311,12 @@ def evaluate_base(
     episodes: int = 200,
     scale: float = 1.0,
     policy: str | PathLike[str] | None = None,
-    controller: Literal["joint", "cartesian"] | None = None,
-    joint_limits: bool = True,
-    horizon: int | None = None,
-    variant: str | None = None,
+    env: dict[str, Any] | None = None,
     threads: int = 1,
 ) -> dict[str, Any]:
     """The base policy on the pinned evaluation starts with latent noise N(0, scale^2 I) clipped
-    to the bound, evaluated as a steering run evaluates its actor. Keys: task, policy, scale,
+    to the bound, evaluated as a steering run evaluates its actor, in the environment that the
+    options ``env`` (the environments' keyword arguments) build. Keys: task, policy, scale,
     seed, first_start, successes, episodes, success_rate, low, high (Wilson 95 %), outcomes
     (one bool per episode, in start order)."""
 

@@ -75,8 +75,8 @@ def run(
     ``train``, ``eval``), ``eval_env_steps``, ``params_hash``, ``fields``, parameter counts).
 
     ``options`` are ``equigym._core.steer_run``'s keyword options, typed in its stub (threads,
-    preset, joint_limits, controller, eval_every, eval_episodes, ent_init, horizon,
-    terminate_on_success, noise_aliased, target_entropy, prior_kl, reward_scale, select, progress);
+    preset, env (the environments' keyword arguments as a dict), eval_every, eval_episodes,
+    ent_init, terminate_on_success, noise_aliased, target_entropy, prior_kl, reward_scale, select, progress);
     an unknown name is a ``TypeError``. ``policy`` defaults to the task's shipped EDP and
     ``progress`` to True."""
     options.setdefault("progress", True)
@@ -103,7 +103,7 @@ def _trainable(config: dict[str, Any]) -> None:
                 c["out"],
                 threads=1,
                 preset=c["preset"],
-                joint_limits=c["joint_limits"],
+                env=c["env"],
                 eval_every=every,
                 eval_episodes=c["eval_episodes"],
                 policy=c["policy"],
@@ -145,14 +145,17 @@ def _run_sb3(c: dict[str, Any], steps: int) -> Path:
     cmd += ["--eval-every", str(c["eval_every"]), "--eval-episodes", str(c["eval_episodes"]), "--no-progress"]
     if c["ent_init"] is not None:
         cmd += ["--ent-init", repr(float(c["ent_init"]))]
-    if not c["joint_limits"]:
+    limits = c["env"].get("joint_limits", True)
+    if set(c["env"]) - {"joint_limits"}:
+        raise SystemExit(f"the SB3 runner takes no environment options but joint_limits, got {c['env']}")
+    if not limits:
         cmd.append("--no-joint-limits")
     if c["policy"]:
         cmd += ["--policy", str(c["policy"])]
     if c.get("terminate_on_success"):
         cmd.append("--terminate-on-success")
     subprocess.run(cmd, check=True)
-    return Path(c["out"]) / f"{c['task']}{'' if c['joint_limits'] else '-nolimits'}" / c["method"] / f"seed{c['seed']}"
+    return Path(c["out"]) / f"{c['task']}{'' if limits else '-nolimits'}" / c["method"] / f"seed{c['seed']}"
 
 
 def sweep_jobs(methods: list[str], seeds: list[int], sb3: list[str], sb3_seeds: list[int]) -> list[dict[str, Any]]:
@@ -223,12 +226,24 @@ def _run_options(a: argparse.Namespace) -> dict[str, Any]:
     return options
 
 
+def _env_options(a: argparse.Namespace) -> dict[str, Any]:
+    """The environment options (the environments' keyword arguments) a command line asks for:
+    ``--env``'s JSON, with ``--no-joint-limits``, ``--controller`` and ``--horizon`` on top."""
+    env = dict(json.loads(a.env)) if getattr(a, "env", None) else {}
+    if a.no_joint_limits:
+        env["joint_limits"] = False
+    for name in ("controller", "horizon"):
+        if getattr(a, name, None) is not None:
+            env[name] = getattr(a, name)
+    return env
+
+
 def _trial_settings(a: argparse.Namespace, out: Path) -> dict[str, Any]:
     """What every trial of a sweep or a screen shares: budget, evaluation, policy and output root."""
     return {
         "steps": a.steps,
         "preset": a.preset,
-        "joint_limits": not a.no_joint_limits,
+        "env": _env_options(a),
         "eval_every": a.eval_every,
         "eval_episodes": a.eval_episodes,
         "policy": a.policy,
@@ -521,6 +536,15 @@ def _mean_se(xs: list[float]) -> str:
     return f"{m:.3f} +- {se:.3f}"
 
 
+def _meta_env(meta: dict[str, Any]) -> dict[str, Any]:
+    """The environment options of a run from its ``run.json``."""
+    env = dict(meta.get("env") or {})
+    env.update({k: meta[k] for k in ("controller", "horizon", "variant") if meta.get(k) is not None})
+    if not meta.get("joint_limits", True):
+        env["joint_limits"] = False
+    return env
+
+
 def controls(
     meta: dict[str, Any], seeds: list[int], scales=CONTROL_SCALES, cache: Path | None = None, threads: int = 1
 ) -> dict[float, list[dict[str, Any]]]:
@@ -536,6 +560,8 @@ def controls(
         "joint_limits": meta.get("joint_limits", True),
         "horizon": meta.get("horizon"),
         "variant": meta.get("variant"),
+        # keys of runs with further options only, so that committed caches keep their keys
+        **({"env": meta["env"]} if meta.get("env") else {}),
     }
     out: dict[float, list[dict[str, Any]]] = {}
     for scale in scales:
@@ -544,8 +570,10 @@ def controls(
         for seed in seeds if scale > 0 else seeds[:1]:
             key = json.dumps({**settings, "scale": scale, "seed": seed}, sort_keys=True)
             if key not in known:
-                kw = {k: v for k, v in settings.items() if k != "task"}
-                known[key] = _core.evaluate_base(meta["task"], seed=seed, scale=scale, threads=threads, **kw)
+                kw = {"policy": settings["policy"], "episodes": settings["episodes"]}
+                known[key] = _core.evaluate_base(
+                    meta["task"], seed=seed, scale=scale, threads=threads, env=_meta_env(meta), **kw
+                )
                 if cache:
                     cache.parent.mkdir(parents=True, exist_ok=True)
                     cache.write_text(json.dumps(known, indent=1) + "\n")
@@ -665,6 +693,12 @@ def main(argv: list[str] | None = None) -> None:
                 "--threads", type=int, default=1, help="environment / denoising threads (results do not depend on it)"
             )
             s.add_argument("--controller", choices=("joint", "cartesian"), default=None)
+            s.add_argument(
+                "--env",
+                default=None,
+                help="environment options as JSON, the environments' keyword arguments (e.g. "
+                '\'{"variant": "D2", "physics": {"substeps": 6}}\')',
+            )
             s.add_argument("--horizon", type=int, default=None, help="episode length override (control steps)")
             s.add_argument("--quiet", action="store_true")
             s.add_argument("--out", default="runs/steer-rust")
@@ -759,13 +793,11 @@ def main(argv: list[str] | None = None) -> None:
             a.out,
             threads=a.threads,
             preset=a.preset,
-            joint_limits=not a.no_joint_limits,
-            controller=a.controller,
+            env=_env_options(a),
             eval_every=a.eval_every,
             eval_episodes=a.eval_episodes,
             policy=a.policy,
             ent_init=a.ent_init,
-            horizon=a.horizon,
             progress=not a.quiet,
             **options,
         )

@@ -156,15 +156,13 @@ def _core_env(env: Any) -> _core.Env:
 def measure_breaking(
     task: str,
     *,
-    variant: str | None = None,
-    joint_limits: bool = True,
-    cartesian_control: bool = False,
     group_order: int = 8,
     episodes: int = 20,
     states_per_episode: int = 4,
     probe_steps: int = 1,
     replay_slack: int = 30,
     seed: int = 0,
+    **env_options: Any,
 ) -> dict[str, Any]:
     """Measure how much a task breaks the rotational symmetry.
 
@@ -173,15 +171,15 @@ def measure_breaking(
     C_N (observation, object and hand position errors, dense-reward and success mismatch,
     fraction of rotated states the arm cannot reach), and (b) replays each successful
     demonstration open loop after rotating its initial state and actions by each g.
-    ``cartesian_control`` switches the arm to the Cartesian controller (with joint limits off,
-    the only setting whose physics commutes with the group up to the contact solver).
+    ``env_options`` are the environments' keyword arguments (``variant``, ``joint_limits``,
+    ``controller``, ...); ``controller="cartesian"`` with ``joint_limits=False`` is the only
+    setting whose physics commutes with the group up to the contact solver. The report's
+    ``config`` names the variant, ``joint_limits`` and ``cartesian_control`` resolved.
     Returns a dict with ``config``, ``expert_successes``, ``invariance`` and ``replay`` rows.
     """
     text = _core.measure_symmetry_breaking(
         task,
-        variant=variant,
-        joint_limits=joint_limits,
-        cartesian_control=cartesian_control,
+        env=env_options,
         group_order=group_order,
         episodes=episodes,
         states_per_episode=states_per_episode,

@@ -39,7 +39,7 @@ def _measure(job: tuple[str, str | None, bool, bool, int, int]) -> dict[str, Any
         task,
         variant=variant,
         joint_limits=limits,
-        cartesian_control=cartesian,
+        controller="cartesian" if cartesian else "joint",
         episodes=episodes,
         group_order=group_order,
     )

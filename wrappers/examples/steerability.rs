@@ -177,40 +177,7 @@ fn report(dir: &Path, policy: &str, controller: &str, command: &str) -> Result<S
          Made by `{command}` (module `equigym_wrappers::steerability`; rates with Wilson 95 % intervals).\n"
     );
     if let Some(b) = read::<BaseReport>(&dir.join("base.json"))? {
-        let c = &b.config;
-        md += &format!(
-            "\n## Base rollouts: how they end\n\n{} starts (seeds {}..) x {} rollouts, N(0, I) noise, run to the horizon.\n\
-             Success {}; first success at primitive step {} on average.\n\n| outcome | rollouts | share |\n|---|---:|---:|\n",
-            c.starts,
-            c.first_seed,
-            c.per_start,
-            rate(&b.success),
-            opt(b.mean_first_success_step, 0)
-        );
-        let n = b.success.n.max(1) as f64;
-        for (o, k) in &b.outcomes {
-            md += &format!("| {} | {} | {:.2} |\n", o.name(), k, *k as f64 / n);
-        }
-        let mut hist = vec![0usize; c.per_start + 1];
-        for &s in &b.per_start_successes {
-            hist[s] += 1;
-        }
-        md += &format!(
-            "\nStarts by successes out of {}: {}.\n",
-            c.per_start,
-            hist.iter().enumerate().map(|(k, n)| format!("{k}: {n}")).collect::<Vec<_>>().join(", ")
-        );
-        if !b.spread_by_phase.is_empty() {
-            md += &format!(
-                "\n### How far the chunk moves with the noise\n\n{} noises decoded before every chunk of the first rollout of {} starts: \
-                 RMS spread of the commanded positions and std of the commanded width across noises.\n\n\
-                 | phase | chunks | position (mm) | width (mm) |\n|---|---:|---:|---:|\n",
-                c.spread_noises, c.spread_starts
-            );
-            for (p, k, pos, w) in &b.spread_by_phase {
-                md += &format!("| {} | {} | {:.1} | {:.1} |\n", p.name(), k, pos, w);
-            }
-        }
+        md += &base_section(&b);
     }
     let mut probes: Vec<PathBuf> = std::fs::read_dir(dir)?
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -218,92 +185,141 @@ fn report(dir: &Path, policy: &str, controller: &str, command: &str) -> Result<S
         .collect();
     probes.sort();
     for path in probes {
-        let Some(p) = read::<ProbeReport>(&path)? else { continue };
-        let c = &p.config;
-        md += &format!(
-            "\n## Does the noise of the next {} chunk(s) change success?\n\n\
-             States along base rollouts of {} starts (seeds {}..) at latent steps {:?} (skipped after a success); from each, \
-             {} candidate noises for the next {} chunk(s), each followed by {} base continuations, then the best candidate \
-             again on {} fresh continuations. {} primitive steps.\n\n\
-             - Between-candidate variance / binomial variance, pooled over {} informative states: **{}** (1 when the noise \
-             changes nothing measurable; s.d. under that hypothesis {}).\n\
-             - Implied s.d. of P(success | s, w) across noises, binomial noise taken out: **{}**.\n\
-             - Best candidate's fresh success minus the state's mean: **{} +- {}** (s.e. over {} states).\n\n\
-             | phase | states | informative | variance ratio | best - mean |\n|---|---:|---:|---:|---:|\n",
-            c.hold,
-            c.starts,
-            c.first_seed,
-            c.at_latent_steps,
-            c.candidates,
-            c.hold,
-            c.continuations,
-            c.continuations,
-            p.primitive_steps,
-            p.informative_states,
-            opt(p.pooled_ratio, 2),
-            opt(p.pooled_ratio_null_sd, 2),
-            opt(p.implied_noise_sd(), 3),
-            opt(p.best_gain, 3),
-            opt(p.best_gain_se, 3),
-            p.states.len()
-        );
-        for ph in &p.by_phase {
-            md += &format!(
-                "| {} | {} | {} | {} | {} +- {} |\n",
-                ph.phase.name(),
-                ph.states,
-                ph.informative_states,
-                opt(ph.pooled_ratio, 2),
-                opt(ph.best_gain, 3),
-                opt(ph.best_gain_se, 3)
-            );
-        }
-        md += "\n| seed | latent step | phase | successes per candidate | mean | ratio | best, fresh |\n|---|---:|---|---|---:|---:|---|\n";
-        for s in &p.states {
-            md += &format!(
-                "| {} | {} | {} | {:?} | {:.2} | {} | {} |\n",
-                s.seed,
-                s.latent_step,
-                s.phase.name(),
-                s.candidate_successes,
-                s.mean,
-                opt(s.variance_ratio, 2),
-                rate(&s.best_holdout)
-            );
+        if let Some(p) = read::<ProbeReport>(&path)? {
+            md += &probe_section(&p);
         }
     }
     if let Some(p) = read::<PolicySearchReport>(&dir.join("policies.json"))? {
-        let c = &p.config;
-        md += &format!(
-            "\n## The best simple noise policies: one choice per phase\n\n\
-             Per phase (approach / released / grasped / lifted), fresh noise at a scale in {:?} or one of {} constant vectors; chosen greedily \
-             phase by phase on {} starts (seeds {}..), then measured with the base and every uniform scale on {} other starts \
-             (seeds {}..), paired.\n\n\
-             - Chosen: approach {}, released {}, grasped {}, lifted {} (search {}).\n\
-             - Test starts: base {}; chosen {}; best uniform scale {} {}.\n\
-             - Paired: {} starts only the chosen policy solved, {} only the base.\n\n\
-             | phase | choice | search success |\n|---|---|---|\n",
-            c.scales,
-            c.constants,
-            c.search_starts,
-            c.search_first_seed,
-            c.test_starts,
-            c.test_first_seed,
-            p.chosen[0],
-            p.chosen[1],
-            p.chosen[2],
-            p.chosen[3],
-            rate(&p.chosen_search),
-            rate(&p.base_test),
-            rate(&p.chosen_test),
-            p.best_scale_test.0,
-            rate(&p.best_scale_test.1),
-            p.only_chosen,
-            p.only_base
-        );
-        for t in &p.trials {
-            md += &format!("| {} | {} | {} |\n", t.phase.name(), t.choice, rate(&t.search));
-        }
+        md += &policy_section(&p);
     }
     Ok(md)
+}
+
+fn base_section(b: &BaseReport) -> String {
+    let c = &b.config;
+    let mut md = format!(
+        "\n## Base rollouts: how they end\n\n{} starts (seeds {}..) x {} rollouts, N(0, I) noise, run to the horizon.\n\
+         Success {}; first success at primitive step {} on average.\n\n| outcome | rollouts | share |\n|---|---:|---:|\n",
+        c.starts,
+        c.first_seed,
+        c.per_start,
+        rate(&b.success),
+        opt(b.mean_first_success_step, 0)
+    );
+    let n = b.success.n.max(1) as f64;
+    for (o, k) in &b.outcomes {
+        md += &format!("| {} | {} | {:.2} |\n", o.name(), k, *k as f64 / n);
+    }
+    let mut hist = vec![0usize; c.per_start + 1];
+    for &s in &b.per_start_successes {
+        hist[s] += 1;
+    }
+    md += &format!(
+        "\nStarts by successes out of {}: {}.\n",
+        c.per_start,
+        hist.iter().enumerate().map(|(k, n)| format!("{k}: {n}")).collect::<Vec<_>>().join(", ")
+    );
+    if !b.spread_by_phase.is_empty() {
+        md += &format!(
+            "\n### How far the chunk moves with the noise\n\n{} noises decoded before every chunk of the first rollout of {} starts: \
+             RMS spread of the commanded positions and std of the commanded width across noises.\n\n\
+             | phase | chunks | position (mm) | width (mm) |\n|---|---:|---:|---:|\n",
+            c.spread_noises, c.spread_starts
+        );
+        for (p, k, pos, w) in &b.spread_by_phase {
+            md += &format!("| {} | {} | {:.1} | {:.1} |\n", p.name(), k, pos, w);
+        }
+    }
+    md
+}
+
+fn probe_section(p: &ProbeReport) -> String {
+    let c = &p.config;
+    let mut md = format!(
+        "\n## Does the noise of the next {} chunk(s) change success?\n\n\
+         States along base rollouts of {} starts (seeds {}..) at latent steps {:?} (skipped after a success); from each, \
+         {} candidate noises for the next {} chunk(s), each followed by {} base continuations, then the best candidate \
+         again on {} fresh continuations. {} primitive steps.\n\n\
+         - Between-candidate variance / binomial variance, pooled over {} informative states: **{}** (1 when the noise \
+         changes nothing measurable; s.d. under that hypothesis {}).\n\
+         - Implied s.d. of P(success | s, w) across noises, binomial noise taken out: **{}**.\n\
+         - Best candidate's fresh success minus the state's mean: **{} +- {}** (s.e. over {} states).\n\n\
+         | phase | states | informative | variance ratio | best - mean |\n|---|---:|---:|---:|---:|\n",
+        c.hold,
+        c.starts,
+        c.first_seed,
+        c.at_latent_steps,
+        c.candidates,
+        c.hold,
+        c.continuations,
+        c.continuations,
+        p.primitive_steps,
+        p.informative_states,
+        opt(p.pooled_ratio, 2),
+        opt(p.pooled_ratio_null_sd, 2),
+        opt(p.implied_noise_sd(), 3),
+        opt(p.best_gain, 3),
+        opt(p.best_gain_se, 3),
+        p.states.len()
+    );
+    for ph in &p.by_phase {
+        md += &format!(
+            "| {} | {} | {} | {} | {} +- {} |\n",
+            ph.phase.name(),
+            ph.states,
+            ph.informative_states,
+            opt(ph.pooled_ratio, 2),
+            opt(ph.best_gain, 3),
+            opt(ph.best_gain_se, 3)
+        );
+    }
+    md += "\n| seed | latent step | phase | successes per candidate | mean | ratio | best, fresh |\n|---|---:|---|---|---:|---:|---|\n";
+    for s in &p.states {
+        md += &format!(
+            "| {} | {} | {} | {:?} | {:.2} | {} | {} |\n",
+            s.seed,
+            s.latent_step,
+            s.phase.name(),
+            s.candidate_successes,
+            s.mean,
+            opt(s.variance_ratio, 2),
+            rate(&s.best_holdout)
+        );
+    }
+    md
+}
+
+fn policy_section(p: &PolicySearchReport) -> String {
+    let c = &p.config;
+    let mut md = format!(
+        "\n## The best simple noise policies: one choice per phase\n\n\
+         Per phase (approach / released / grasped / lifted), fresh noise at a scale in {:?} or one of {} constant vectors; chosen greedily \
+         phase by phase on {} starts (seeds {}..), then measured with the base and every uniform scale on {} other starts \
+         (seeds {}..), paired.\n\n\
+         - Chosen: approach {}, released {}, grasped {}, lifted {} (search {}).\n\
+         - Test starts: base {}; chosen {}; best uniform scale {} {}.\n\
+         - Paired: {} starts only the chosen policy solved, {} only the base.\n\n\
+         | phase | choice | search success |\n|---|---|---|\n",
+        c.scales,
+        c.constants,
+        c.search_starts,
+        c.search_first_seed,
+        c.test_starts,
+        c.test_first_seed,
+        p.chosen[0],
+        p.chosen[1],
+        p.chosen[2],
+        p.chosen[3],
+        rate(&p.chosen_search),
+        rate(&p.base_test),
+        rate(&p.chosen_test),
+        p.best_scale_test.0,
+        rate(&p.best_scale_test.1),
+        p.only_chosen,
+        p.only_base
+    );
+    for t in &p.trials {
+        md += &format!("| {} | {} | {} |\n", t.phase.name(), t.choice, rate(&t.search));
+    }
+    md
 }

@@ -3,14 +3,15 @@
 //!
 //! `cargo run --release -p equigym-wrappers --example symmetry_breaking -- [task] [variant] [limits on|off] [episodes] [joint|cartesian]`
 
+use equigym_envs::Controller;
 use equigym_wrappers::breaking::{measure, BreakingConfig};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
     let mut config = BreakingConfig::new(args.get(1).map_or("lift", |s| s.as_str()));
-    config.variant = args.get(2).filter(|s| !s.is_empty() && *s != "-").cloned();
-    config.joint_limits = args.get(3).is_none_or(|s| s != "off");
-    config.cartesian_control = args.get(5).is_some_and(|s| s == "cartesian");
+    config.env.variant = args.get(2).filter(|s| !s.is_empty() && *s != "-").cloned();
+    config.env.joint_limits = Some(args.get(3).is_none_or(|s| s != "off"));
+    config.env.controller = args.get(5).is_some_and(|s| s == "cartesian").then_some(Controller::Cartesian);
     if let Some(n) = args.get(4) {
         config.episodes = n.parse()?;
     }
@@ -19,8 +20,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!(
         "{} {:?} joint limits {}: expert {}/{} ({:.1} s)",
         config.task,
-        config.variant,
-        if config.joint_limits { "on" } else { "off" },
+        config.env.variant,
+        if config.env.joint_limits_on() { "on" } else { "off" },
         report.expert_successes,
         report.expert_episodes,
         start.elapsed().as_secs_f64()

@@ -16,7 +16,7 @@
 use equigym_envs::experts::{make_expert, ExpertOptions};
 use equigym_envs::math::from_pose;
 use equigym_envs::rng::{EpisodeRng, SeedUse};
-use equigym_envs::{Action, Env, EnvConfig, EnvError, RewardKind};
+use equigym_envs::{Action, Controller, Env, EnvError, EnvOptions, RewardKind};
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
 
@@ -26,13 +26,12 @@ use crate::symmetry::{transform_state, TaskSymmetry, ROTATION_CENTRE};
 
 /// What to measure.
 #[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(into = "ConfigRecord")]
 pub struct BreakingConfig {
     pub task: String,
-    /// Reset distribution ("D0", "D1", "D2"); None = the task's default.
-    pub variant: Option<String>,
-    pub joint_limits: bool,
-    /// Cartesian arm control instead of joint-space interpolation (see `PhysicsConfig`).
-    pub cartesian_control: bool,
+    /// The environment's options (reset variant, joint limits, controller, ...; the Python
+    /// environments' keyword arguments). The reward is always the dense one.
+    pub env: EnvOptions,
     /// Order N of the cyclic group whose elements are probed.
     pub group_order: usize,
     /// Expert episodes (seeds `seed .. seed + episodes`): demonstrations and sampled states.
@@ -50,15 +49,50 @@ impl BreakingConfig {
     pub fn new(task: &str) -> Self {
         Self {
             task: task.into(),
-            variant: None,
-            joint_limits: true,
-            cartesian_control: false,
+            env: EnvOptions::default(),
             group_order: 8,
             episodes: 20,
             states_per_episode: 4,
             probe_steps: 1,
             replay_slack: 30,
             seed: 0,
+        }
+    }
+}
+
+/// A configuration as the report writes it: the committed reports' fields, the settings that
+/// the symmetry study varies resolved from the options, the other options only where set.
+#[derive(Serialize)]
+struct ConfigRecord {
+    task: String,
+    variant: Option<String>,
+    joint_limits: bool,
+    cartesian_control: bool,
+    group_order: usize,
+    episodes: usize,
+    states_per_episode: usize,
+    probe_steps: usize,
+    replay_slack: usize,
+    seed: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    env: Option<EnvOptions>,
+}
+
+impl From<BreakingConfig> for ConfigRecord {
+    fn from(c: BreakingConfig) -> Self {
+        let rest = EnvOptions { joint_limits: None, controller: None, variant: None, ..c.env.clone() };
+        Self {
+            variant: c.env.variant.clone(),
+            joint_limits: c.env.joint_limits_on(),
+            cartesian_control: c.env.arm_controller() == Controller::Cartesian,
+            env: (rest != EnvOptions::default()).then_some(rest),
+            task: c.task,
+            group_order: c.group_order,
+            episodes: c.episodes,
+            states_per_episode: c.states_per_episode,
+            probe_steps: c.probe_steps,
+            replay_slack: c.replay_slack,
+            seed: c.seed,
         }
     }
 }
@@ -165,11 +199,8 @@ pub fn measure(config: &BreakingConfig) -> Result<BreakingReport> {
         return Err(EnvError::InvalidConfig("episodes and probe_steps must be positive".into()).into());
     }
     let group = Group::cyclic(config.group_order)?;
-    let mut env_config = EnvConfig::new(&config.task);
-    env_config.reward = RewardKind::Dense;
-    env_config.physics.joint_limits = config.joint_limits;
-    env_config.physics.cartesian_control = config.cartesian_control;
-    env_config.task_options.variant = config.variant.clone();
+    let env_options = EnvOptions { reward: RewardKind::Dense, ..config.env.clone() };
+    let env_config = env_options.into_config(&config.task)?;
     let mut env = Env::new(env_config)?;
     let sym = TaskSymmetry::for_env(&env, group, 1)?;
     let elements = group.elements()?;

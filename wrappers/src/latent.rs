@@ -142,15 +142,22 @@ impl LatentEnv {
             .into());
         }
         self.chunk = chunk;
+        // The first primitive step, then the rest of the chunk (a chunk holds at least one
+        // action: the policy's layout was checked against the task's).
+        let (first, rest) = self.chunk.split_at(ACTION_DIM.min(self.chunk.len()));
+        let r = self.env.step(first)?;
         let mut out = LatentStep {
-            reward: 0.0,
-            terminated: false,
-            truncated: false,
-            success: false,
-            executed: 0,
-            evaluation: Evaluation::default(),
+            reward: r.evaluation.success as u8 as f64 - 1.0,
+            terminated: r.terminated,
+            truncated: r.truncated,
+            success: r.evaluation.success,
+            executed: 1,
+            evaluation: r.evaluation,
         };
-        for a in self.chunk.chunks_exact(ACTION_DIM) {
+        for a in rest.chunks_exact(ACTION_DIM) {
+            if out.terminated || out.truncated {
+                break;
+            }
             let r = self.env.step(a)?;
             out.executed += 1;
             out.reward += r.evaluation.success as u8 as f64 - 1.0;
@@ -158,9 +165,6 @@ impl LatentEnv {
             out.terminated |= r.terminated;
             out.truncated |= r.truncated;
             out.evaluation = r.evaluation;
-            if out.terminated || out.truncated {
-                break;
-            }
         }
         self.last_executed = out.executed;
         Ok(out)

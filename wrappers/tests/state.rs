@@ -1,6 +1,6 @@
 //! The group acting on simulator states: observation consistency and transition equivariance.
 
-use equigym_envs::{Env, EnvConfig};
+use equigym_envs::{Controller, Env, EnvConfig};
 use equigym_wrappers::breaking::{measure, BreakingConfig};
 use equigym_wrappers::{transform_state, Group, TaskSymmetry};
 
@@ -8,7 +8,7 @@ fn env(task: &str, joint_limits: bool) -> Env {
     let mut c = EnvConfig::new(task);
     c.physics.joint_limits = joint_limits;
     // Without limits, the Cartesian controller is the setting whose physics commutes with the group.
-    c.physics.cartesian_control = !joint_limits;
+    c.controller = if joint_limits { Controller::Joint } else { Controller::Cartesian };
     Env::new(c).unwrap()
 }
 
@@ -46,8 +46,8 @@ fn joint_limits_break_the_symmetry() {
     config.episodes = 3;
     config.states_per_episode = 3;
     let on = measure(&config).unwrap();
-    config.joint_limits = false;
-    config.cartesian_control = true;
+    config.env.joint_limits = Some(false);
+    config.env.controller = Some(Controller::Cartesian);
     let off = measure(&config).unwrap();
     let err = |r: &equigym_wrappers::breaking::BreakingReport| r.mean_over_rotations(|row| row.hand_error_mean);
     assert!(on.invariance.iter().any(|r| r.unreachable > 0.0));

@@ -27,7 +27,7 @@ use equigym_wrappers::steerability::{ProbeConfig, Rate};
 
 const USAGE: &str =
     "usage: steer run --method {dsrl,equi,approx} --task {lift,stack,square} --seed S --steps N --out DIR \
-[--threads T] [--preset cpu|paper] [--no-joint-limits] [--controller joint|cartesian] [--eval-every N] \
+[--threads T] [--preset cpu|paper] [--env JSON] [--no-joint-limits] [--controller joint|cartesian] [--eval-every N] \
 [--eval-episodes N] [--policy FILE] [--ent-init X] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X | --prior-kl NATS] [--reward-scale X] [--select N] [--quiet]
        steer probe <the run's options> --report DIR [--starts N] [--at K,K,..] [--candidates M] [--continuations K] [--actor-samples A]
        steer eval <the run's options> [--actor mean|sampled|best-of-N] [--episodes N]";
@@ -118,15 +118,18 @@ fn parse(args: &[String]) -> Result<RunConfig, String> {
         match a.as_str() {
             "--threads" => cfg.threads = num()?,
             "--preset" => cfg.preset = Preset::named(&v).map_err(|e| e.to_string())?,
-            "--no-joint-limits" => cfg.joint_limits = false,
-            "--controller" => cfg.controller = Some(v.parse::<Controller>().map_err(|e| format!("--controller: {e}"))?),
+            "--env" => cfg.env = serde_json::from_str(&v).map_err(|e| format!("--env: {e}"))?,
+            "--no-joint-limits" => cfg.env.joint_limits = Some(false),
+            "--controller" => {
+                cfg.env.controller = Some(v.parse::<Controller>().map_err(|e| format!("--controller: {e}"))?)
+            }
             "--eval-every" => cfg.eval_every = num()?,
             "--eval-episodes" => cfg.eval_episodes = num()?,
             "--policy" => cfg.policy = Some(v.into()),
             "--ent-init" => {
                 cfg.ent_init = Some(v.parse::<f64>().map_err(|_| format!("--ent-init takes a number, got '{v}'"))?)
             }
-            "--horizon" => cfg.horizon = Some(num()?),
+            "--horizon" => cfg.env.horizon = Some(num()?),
             "--target-entropy" => {
                 cfg.target_entropy =
                     Some(v.parse::<f64>().map_err(|_| format!("--target-entropy takes a number, got '{v}'"))?)

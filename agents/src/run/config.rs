@@ -2,7 +2,7 @@
 //! ([`Preset`]), DSRL's constants, the checks on a configuration and the fingerprint that a
 //! checkpoint must match to be resumed.
 
-use equigym_envs::Controller;
+use equigym_envs::{Controller, EnvOptions};
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -85,20 +85,15 @@ pub struct RunConfig {
     /// Threads for environments and denoising (0: one per core). Results do not depend on it.
     pub threads: usize,
     pub preset: Preset,
-    pub joint_limits: bool,
-    /// Arm controller: None keeps the environment's default, Some(true) Cartesian, Some(false) joint.
-    pub controller: Option<Controller>,
+    /// The environments' options: the Python environments' keyword arguments (joint limits,
+    /// controller, horizon, reset variant, physics, ...). Default: the task's own.
+    pub env: EnvOptions,
     pub eval_every: usize,
     pub eval_episodes: usize,
     /// Diffusion policy file (default: the shipped one for the task).
     pub policy: Option<PathBuf>,
     /// Initial entropy coefficient (default: the preset's).
     pub ent_init: Option<f64>,
-    /// Episode length override (control steps); tests use short episodes.
-    pub horizon: Option<usize>,
-    /// Reset-distribution variant ("D0", "D1", "D2"; None: the task's default, which is the
-    /// shipped policy's).
-    pub variant: Option<String>,
     /// End training episodes at the first latent step that succeeds (a terminal transition,
     /// then a reset) instead of running them to the horizon as DSRL does. The return then
     /// counts the steps to success, the quantity the evaluation measures, rather than the time
@@ -145,14 +140,11 @@ impl RunConfig {
             out: out.into(),
             threads: 1,
             preset: Preset::named("cpu")?,
-            joint_limits: true,
-            controller: None,
+            env: EnvOptions::default(),
             eval_every: EVAL_EVERY,
             eval_episodes: EVAL_EPISODES,
             policy: None,
             ent_init: None,
-            horizon: None,
-            variant: None,
             terminate_on_success: false,
             noise_aliased: false,
             target_entropy: None,
@@ -164,17 +156,31 @@ impl RunConfig {
         })
     }
 
+    /// Whether the arm's joint limits are enforced.
+    pub fn joint_limits(&self) -> bool {
+        self.env.joint_limits_on()
+    }
+
     /// `out/<task>[-nolimits][-joint|-cartesian]/<method>/seed<S>` (the SB3 runs' layout).
     pub fn run_dir(&self) -> PathBuf {
         let mut task = self.task.clone();
-        if !self.joint_limits {
+        if !self.joint_limits() {
             task.push_str("-nolimits");
         }
-        if let Some(c) = self.controller {
+        if let Some(c) = self.env.controller {
             task.push('-');
             task.push_str(c.name());
         }
         self.out.join(task).join(self.method.name()).join(format!("seed{}", self.seed))
+    }
+
+    /// The environment options other than the four a run names on its own (joint limits,
+    /// controller, horizon, variant), where any differs from the default: what `run.json` and
+    /// the fingerprint add for them.
+    pub(super) fn other_env_options(&self) -> Option<EnvOptions> {
+        let rest =
+            EnvOptions { joint_limits: None, controller: None, horizon: None, variant: None, ..self.env.clone() };
+        (rest != EnvOptions::default()).then_some(rest)
     }
 
     pub(crate) fn policy_path(&self) -> PathBuf {
@@ -218,8 +224,11 @@ impl RunConfig {
         if let Some(n) = self.select {
             later.push_str(&format!("|select={n}"));
         }
-        if let Some(v) = &self.variant {
+        if let Some(v) = &self.env.variant {
             later.push_str(&format!("|variant={v}"));
+        }
+        if let Some(rest) = self.other_env_options() {
+            later.push_str(&format!("|env={}", serde_json::to_string(&rest).unwrap_or_default()));
         }
         format!(
             "{}|{}|{}|{:?}|{}|{:?}|{}|{}|{}|{:?}|{:?}",
@@ -227,14 +236,14 @@ impl RunConfig {
             self.task,
             self.seed,
             self.preset,
-            self.joint_limits,
+            self.joint_limits(),
             // spelled as the earlier `cartesian: Option<bool>`, so that checkpoints still resume
-            self.controller.map(|c| c == Controller::Cartesian),
+            self.env.controller.map(|c| c == Controller::Cartesian),
             self.eval_every,
             self.eval_episodes,
             self.policy_path().display(),
             self.ent_init,
-            self.horizon
+            self.env.horizon
         ) + &later
     }
 

@@ -3,7 +3,7 @@
 //! (step counts, weights hash, clock and time split) and `run.json` (what the run is, for
 //! reports; the layout of the committed runs).
 
-use equigym_envs::Controller;
+use equigym_envs::{Controller, EnvOptions};
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
@@ -95,7 +95,7 @@ impl Runner {
             seed: cfg.seed,
             steps: cfg.steps,
             preset: &cfg.preset.name,
-            joint_limits: cfg.joint_limits,
+            joint_limits: cfg.joint_limits(),
             agent: "rust",
             fields: self.fields,
             params_actor: self.sac.actor.num_params(),
@@ -107,11 +107,12 @@ impl Runner {
             prior_kl: cfg.prior_kl,
             reward_scale: cfg.reward_scale,
             select: cfg.select,
-            variant: cfg.variant.as_deref(),
+            variant: cfg.env.variant.as_deref(),
             eval_every: (cfg.eval_every != EVAL_EVERY).then_some(cfg.eval_every),
             eval_episodes: (cfg.eval_episodes != EVAL_EPISODES).then_some(cfg.eval_episodes),
-            controller: cfg.controller.map(Controller::name),
-            horizon: cfg.horizon,
+            controller: cfg.env.controller.map(Controller::name),
+            horizon: cfg.env.horizon,
+            env: cfg.other_env_options(),
         };
         write_atomic(&dir.join("run.json"), meta.to_json().as_bytes())
     }
@@ -170,6 +171,9 @@ struct RunMeta<'a> {
     controller: Option<&'a str>,
     #[serde(skip_serializing_if = "Option::is_none")]
     horizon: Option<usize>,
+    /// The other environment options, where any differs from the default.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    env: Option<EnvOptions>,
 }
 
 fn is_false(b: &bool) -> bool {
@@ -230,6 +234,7 @@ mod tests {
             eval_episodes: None,
             controller: None,
             horizon: None,
+            env: None,
         }
     }
 

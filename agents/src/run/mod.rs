@@ -46,7 +46,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
-use equigym_envs::{AutoresetMode, Controller, Env, EnvConfig};
+use equigym_envs::{AutoresetMode, Env};
 use equigym_wrappers::latent::{latent_batch, LatentBatchEnv};
 use equigym_wrappers::{DiffusionPolicy, Group, LatentEnv, TaskSymmetry, DEFAULT_LATENT_BOUND};
 use serde::{Deserialize, Serialize};
@@ -324,13 +324,7 @@ pub fn make_env(cfg: &RunConfig, policy: &Arc<DiffusionPolicy>) -> Result<Latent
 
 /// [`make_env`], with the environment layer's error.
 fn latent_env(cfg: &RunConfig, policy: &Arc<DiffusionPolicy>) -> equigym_wrappers::Result<LatentEnv> {
-    let mut ec = EnvConfig::new(&cfg.task);
-    ec.physics.joint_limits = cfg.joint_limits;
-    if let Some(c) = cfg.controller {
-        ec.physics.cartesian_control = c == Controller::Cartesian;
-    }
-    ec.horizon = cfg.horizon;
-    ec.task_options.variant = cfg.variant.clone();
+    let ec = cfg.env.clone().into_config(&cfg.task)?;
     let env = Env::new(ec)?;
     LatentEnv::new(env, policy.clone(), DEFAULT_LATENT_BOUND, policy.default_ddim_steps)
 }

@@ -20,6 +20,7 @@ use nalgebra::{Isometry3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
 use super::{IkOptions, IkReport, RobotModel};
+use crate::error::EnvError;
 use crate::math::clamp_norm;
 
 /// How far the commanded joints may run ahead of the measured ones (rad).
@@ -231,42 +232,90 @@ impl ArmController for Cartesian {
     }
 }
 
-/// The controller of a scene (serialisable with the physics state).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// Which arm controller turns absolute pose targets into motion (the `controller` option).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase", try_from = "String")]
 pub enum Controller {
+    /// IK, then joint-space interpolation at the joints' speed limits (the default).
+    #[default]
+    Joint,
+    /// Straight-line TCP paths at bounded speed; without joint limits it commutes with rotations
+    /// of the scene about a vertical axis.
+    Cartesian,
+}
+
+impl Controller {
+    /// The option's spelling (`"joint"`, `"cartesian"`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Controller::Joint => "joint",
+            Controller::Cartesian => "cartesian",
+        }
+    }
+}
+
+impl std::str::FromStr for Controller {
+    type Err = EnvError;
+    fn from_str(s: &str) -> crate::error::Result<Self> {
+        match s {
+            "joint" => Ok(Controller::Joint),
+            "cartesian" => Ok(Controller::Cartesian),
+            other => Err(EnvError::InvalidConfig(format!("controller must be 'joint' or 'cartesian', got '{other}'"))),
+        }
+    }
+}
+
+impl TryFrom<String> for Controller {
+    type Error = String;
+    fn try_from(s: String) -> std::result::Result<Self, String> {
+        s.parse().map_err(|_| format!("controller must be 'joint' or 'cartesian', got '{s}'"))
+    }
+}
+
+/// The running controller of a scene, with its state (serialisable with the physics state).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum ActiveController {
     Joint(JointSpace),
     Cartesian(Cartesian),
 }
 
-impl Controller {
-    /// A controller of the chosen kind at rest at joints `q`.
-    pub fn new(cartesian: bool, ctx: &ControlContext, q: &[f64]) -> Self {
-        let mut c = if cartesian {
-            Controller::Cartesian(Cartesian {
+impl ActiveController {
+    /// A controller of kind `kind` at rest at joints `q`.
+    pub fn new(kind: Controller, ctx: &ControlContext, q: &[f64]) -> Self {
+        let mut c = if kind == Controller::Cartesian {
+            ActiveController::Cartesian(Cartesian {
                 q_des: Vec::new(),
                 tcp_start: Isometry3::identity(),
                 tcp_end: Isometry3::identity(),
                 q_cmd: Vec::new(),
             })
         } else {
-            Controller::Joint(JointSpace::default())
+            ActiveController::Joint(JointSpace::default())
         };
         c.get().reset(ctx, q);
         c
     }
 
+    /// Which controller this is.
+    pub fn kind(&self) -> Controller {
+        match self {
+            ActiveController::Joint(_) => Controller::Joint,
+            ActiveController::Cartesian(_) => Controller::Cartesian,
+        }
+    }
+
     pub fn get(&mut self) -> &mut dyn ArmController {
         match self {
-            Controller::Joint(c) => c,
-            Controller::Cartesian(c) => c,
+            ActiveController::Joint(c) => c,
+            ActiveController::Cartesian(c) => c,
         }
     }
 
     /// The IK solution of the last target.
     pub fn desired_joints(&self) -> &[f64] {
         match self {
-            Controller::Joint(c) => &c.q_des,
-            Controller::Cartesian(c) => &c.q_des,
+            ActiveController::Joint(c) => &c.q_des,
+            ActiveController::Cartesian(c) => &c.q_des,
         }
     }
 

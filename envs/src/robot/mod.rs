@@ -13,7 +13,7 @@ mod urdf;
 
 use nalgebra::{Isometry3, Unit, Vector3};
 
-pub use controller::{ArmController, Controller};
+pub use controller::{ActiveController, ArmController, Controller};
 pub use kinematics::{IkOptions, IkReport};
 pub use rig::RobotRig;
 pub use urdf::{load_urdf, parse_urdf};

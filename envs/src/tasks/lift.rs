@@ -11,7 +11,7 @@ use nalgebra::{Isometry3, Vector3};
 use rapier3d::prelude::*;
 
 use super::{common, tabletop};
-use super::{range_option, Evaluation, SceneSpec, Task, TaskObject, TaskOptions};
+use super::{range_option, Evaluation, Measures, SceneSpec, Task, TaskObject, TaskOptions};
 use crate::error::{EnvError, Result};
 use crate::layout::{FieldKind, Layout};
 use crate::math::rot6d;
@@ -95,6 +95,24 @@ impl LiftMeasures {
     pub fn success(&self) -> bool {
         self.lifted
     }
+
+    /// The terms `info` reports.
+    pub fn terms(&self) -> Vec<(&'static str, f64)> {
+        vec![
+            ("cube_height", self.cube_height),
+            ("reach_distance", self.reach_distance),
+            ("grasped", self.grasped as u8 as f64),
+        ]
+    }
+
+    /// The shaped reward, in [0, 1] (1 on success): reaching and grasping the cube.
+    pub fn dense_reward(&self) -> f64 {
+        if self.success() {
+            return 1.0;
+        }
+        let grasp = if self.grasped { 0.25 } else { 0.0 };
+        (1.0 - libm::tanh(10.0 * self.reach_distance) + grasp) / 2.25
+    }
 }
 
 impl Lift {
@@ -148,24 +166,7 @@ impl Task for Lift {
     }
 
     fn evaluate(&self, scene: &Scene) -> Evaluation {
-        let m = self.measure(scene);
-        Evaluation {
-            success: m.success(),
-            info: vec![
-                ("cube_height", m.cube_height),
-                ("reach_distance", m.reach_distance),
-                ("grasped", m.grasped as u8 as f64),
-            ],
-        }
-    }
-
-    fn dense_reward(&self, scene: &Scene) -> f64 {
-        let m = self.measure(scene);
-        if m.success() {
-            return 1.0;
-        }
-        let grasp = if m.grasped { 0.25 } else { 0.0 };
-        (1.0 - libm::tanh(10.0 * m.reach_distance) + grasp) / 2.25
+        Measures::Lift(self.measure(scene)).into()
     }
 
     fn objects(&self) -> &[TaskObject] {

@@ -37,14 +37,65 @@ pub struct TaskObject {
     pub half_extents: Vector3<f64>,
 }
 
-/// The outcome of [`Task::evaluate`]: success, and the task's measurements as `info` entries.
-/// Each task measures into its own typed struct (`LiftMeasures`, `StackMeasures`,
-/// `SquareMeasures`), from which both this and its dense reward are computed; the names here are
-/// for reporting only, nothing reads them back.
-#[derive(Clone, Debug, PartialEq, Default)]
+/// What a task measured of a state, typed per task: the one source of its success, of the
+/// named terms that `info` reports and of its shaped reward.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Measures {
+    Lift(lift::LiftMeasures),
+    Stack(stack::StackMeasures),
+    Square(square::SquareMeasures),
+}
+
+impl Measures {
+    /// Whether the state is a success.
+    pub fn success(&self) -> bool {
+        match self {
+            Measures::Lift(m) => m.success(),
+            Measures::Stack(m) => m.success(),
+            Measures::Square(m) => m.success(),
+        }
+    }
+
+    /// The measurements by name, as `info` reports them (booleans as 0 / 1).
+    pub fn terms(&self) -> Vec<(&'static str, f64)> {
+        match self {
+            Measures::Lift(m) => m.terms(),
+            Measures::Stack(m) => m.terms(),
+            Measures::Square(m) => m.terms(),
+        }
+    }
+
+    /// The shaped reward of the state, in [0, 1] (1 on success; robosuite's staging).
+    pub fn dense_reward(&self) -> f64 {
+        match self {
+            Measures::Lift(m) => m.dense_reward(),
+            Measures::Stack(m) => m.dense_reward(),
+            Measures::Square(m) => m.dense_reward(),
+        }
+    }
+}
+
+/// The outcome of [`Task::evaluate`]: success and what the task measured.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Evaluation {
     pub success: bool,
-    pub info: Vec<(&'static str, f64)>,
+    pub measures: Measures,
+}
+
+impl From<Measures> for Evaluation {
+    fn from(measures: Measures) -> Self {
+        Self { success: measures.success(), measures }
+    }
+}
+
+impl Evaluation {
+    /// The reward of `kind` for this state.
+    pub fn reward(&self, kind: RewardKind) -> f64 {
+        match kind {
+            RewardKind::Sparse => self.success as u8 as f64,
+            RewardKind::Dense => self.measures.dense_reward(),
+        }
+    }
 }
 
 /// Which reward an environment returns.
@@ -85,10 +136,8 @@ pub trait Task: Send + Sync {
     fn initialise_episode(&mut self, scene: &mut Scene, rng: &mut EpisodeRng);
     /// Write the observation (length = the layout's dimension).
     fn observe(&self, scene: &Scene, out: &mut [f64]);
-    /// Success and the task's measurements for `info`.
+    /// Success and the task's measurements (from which `info` and the dense reward come).
     fn evaluate(&self, scene: &Scene) -> Evaluation;
-    /// The shaped reward of a state, in [0, 1] (1 on success).
-    fn dense_reward(&self, scene: &Scene) -> f64;
     /// The task's movable objects.
     fn objects(&self) -> &[TaskObject];
     /// Per-episode parameters that live outside the physics state (object sizes), for saving.

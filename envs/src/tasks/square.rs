@@ -15,7 +15,7 @@
 use nalgebra::{Isometry3, Vector3};
 
 use super::common::{self, PlacementRange};
-use super::{range_option, Evaluation, SceneSpec, Task, TaskObject, TaskOptions};
+use super::{range_option, Evaluation, Measures, SceneSpec, Task, TaskObject, TaskOptions};
 use crate::error::{EnvError, Result};
 use crate::layout::{FieldKind, Layout};
 use crate::math::rot6d;
@@ -116,6 +116,33 @@ impl SquareMeasures {
     pub fn success(&self) -> bool {
         self.on_peg && self.gripper_nut_distance > 0.042
     }
+
+    /// The terms `info` reports.
+    pub fn terms(&self) -> Vec<(&'static str, f64)> {
+        vec![
+            ("nut_height", self.nut_height),
+            ("nut_peg_xy_distance", self.nut_peg_xy_distance),
+            ("reach_distance", self.reach_distance),
+            ("gripper_nut_distance", self.gripper_nut_distance),
+            ("grasped", self.grasped as u8 as f64),
+            ("on_peg", self.on_peg as u8 as f64),
+        ]
+    }
+
+    /// robosuite's NutAssembly staging, scaled to [0, 1]: reach and grasp the handle (<= 0.35),
+    /// lift and hover over the peg (<= 0.7), on the peg (1).
+    pub fn dense_reward(&self) -> f64 {
+        if self.success() {
+            return 1.0;
+        }
+        let reach = 0.1 * (1.0 - libm::tanh(10.0 * self.reach_distance)) + if self.grasped { 0.25 } else { 0.0 };
+        let lift = if self.grasped && self.nut_height > 0.01 {
+            0.35 + 0.35 * (1.0 - libm::tanh(10.0 * self.nut_peg_xy_distance))
+        } else {
+            0.0
+        };
+        reach.max(lift)
+    }
 }
 
 impl Square {
@@ -198,34 +225,7 @@ impl Task for Square {
     }
 
     fn evaluate(&self, scene: &Scene) -> Evaluation {
-        let m = self.measure(scene);
-        Evaluation {
-            success: m.success(),
-            info: vec![
-                ("nut_height", m.nut_height),
-                ("nut_peg_xy_distance", m.nut_peg_xy_distance),
-                ("reach_distance", m.reach_distance),
-                ("gripper_nut_distance", m.gripper_nut_distance),
-                ("grasped", m.grasped as u8 as f64),
-                ("on_peg", m.on_peg as u8 as f64),
-            ],
-        }
-    }
-
-    /// robosuite's NutAssembly staging, scaled to [0, 1]: reach and grasp the handle (<= 0.35),
-    /// lift and hover over the peg (<= 0.7), on the peg (1).
-    fn dense_reward(&self, scene: &Scene) -> f64 {
-        let m = self.measure(scene);
-        if m.success() {
-            return 1.0;
-        }
-        let reach = 0.1 * (1.0 - libm::tanh(10.0 * m.reach_distance)) + if m.grasped { 0.25 } else { 0.0 };
-        let lift = if m.grasped && m.nut_height > 0.01 {
-            0.35 + 0.35 * (1.0 - libm::tanh(10.0 * m.nut_peg_xy_distance))
-        } else {
-            0.0
-        };
-        reach.max(lift)
+        Measures::Square(self.measure(scene)).into()
     }
 
     fn objects(&self) -> &[TaskObject] {

@@ -12,7 +12,7 @@
 use nalgebra::Vector3;
 
 use super::common::{self, PlacementRange};
-use super::{range_option, Evaluation, SceneSpec, Task, TaskObject, TaskOptions};
+use super::{range_option, Evaluation, Measures, SceneSpec, Task, TaskObject, TaskOptions};
 use crate::error::{EnvError, Result};
 use crate::layout::{FieldKind, Layout};
 use crate::math::rot6d;
@@ -91,6 +91,32 @@ impl StackMeasures {
     pub fn success(&self) -> bool {
         self.lifted && self.touching && !self.grasped
     }
+
+    /// The terms `info` reports.
+    pub fn terms(&self) -> Vec<(&'static str, f64)> {
+        vec![
+            ("cubeA_height", self.cube_a_height),
+            ("reach_distance", self.reach_distance),
+            ("cubes_xy_distance", self.cubes_xy_distance),
+            ("grasped", self.grasped as u8 as f64),
+            ("cubes_touching", self.touching as u8 as f64),
+        ]
+    }
+
+    /// robosuite's staged Stack reward, scaled to [0, 1]: reach and grasp A (<= 0.5), lift and
+    /// align A over B (<= 1.5), stacked (2).
+    pub fn dense_reward(&self) -> f64 {
+        if self.success() {
+            return 1.0;
+        }
+        let reach = 0.25 * (1.0 - libm::tanh(10.0 * self.reach_distance)) + if self.grasped { 0.25 } else { 0.0 };
+        let lift = if self.grasped && self.cube_a_height > 0.01 {
+            1.0 + 0.5 * (1.0 - libm::tanh(10.0 * self.cubes_xy_distance))
+        } else {
+            0.0
+        };
+        reach.max(lift) / 2.0
+    }
 }
 
 impl Stack {
@@ -141,33 +167,7 @@ impl Task for Stack {
     }
 
     fn evaluate(&self, scene: &Scene) -> Evaluation {
-        let m = self.measure(scene);
-        Evaluation {
-            success: m.success(),
-            info: vec![
-                ("cubeA_height", m.cube_a_height),
-                ("reach_distance", m.reach_distance),
-                ("cubes_xy_distance", m.cubes_xy_distance),
-                ("grasped", m.grasped as u8 as f64),
-                ("cubes_touching", m.touching as u8 as f64),
-            ],
-        }
-    }
-
-    /// robosuite's staged Stack reward, scaled to [0, 1]: reach and grasp A (<= 0.5), lift and
-    /// align A over B (<= 1.5), stacked (2).
-    fn dense_reward(&self, scene: &Scene) -> f64 {
-        let m = self.measure(scene);
-        if m.success() {
-            return 1.0;
-        }
-        let reach = 0.25 * (1.0 - libm::tanh(10.0 * m.reach_distance)) + if m.grasped { 0.25 } else { 0.0 };
-        let lift = if m.grasped && m.cube_a_height > 0.01 {
-            1.0 + 0.5 * (1.0 - libm::tanh(10.0 * m.cubes_xy_distance))
-        } else {
-            0.0
-        };
-        reach.max(lift) / 2.0
+        Measures::Stack(self.measure(scene)).into()
     }
 
     fn objects(&self) -> &[TaskObject] {
