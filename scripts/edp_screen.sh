@@ -6,7 +6,9 @@
 # chosen there, never on the evaluation starts.
 #   stack: clean demos (100, two seeds; 300), 100 demos with one step of observation history,
 #          100 DART demos (execution noise 5 mm, four seeds; 10 mm); 40k steps.
-#   square: 200 DART demos (5 mm) at 40k steps, and at 80k steps with two seeds.
+#   square: 200 DART demos (5 mm) of the handle-grasping expert at 40k steps, two seeds. (The
+#          dart005* result files in docs/edp/square-screen/ are of the earlier ring-grasping
+#          expert, commit 1a83fa5 and before; this script no longer makes its demos.)
 # Resumable: demos, trained weights (and their training checkpoints) and result files that exist
 # are kept. A 40k-step run takes about 15 minutes on one core of this 2-core machine.
 # Usage: bash scripts/edp_screen.sh TASK [OUT] [NAME ...]
@@ -49,11 +51,10 @@ stack)
     )
     ;;
 square)
-    demos square_d2_200_dart005 D2 200 0.005
+    demos square_d2_200_dart005_handle D2 200 0.005
     CONFIGS=(
-        [dart005]="square_d2_200_dart005 --steps 40000"
-        [dart005_80k_seed0]="square_d2_200_dart005 --steps 80000"
-        [dart005_80k_seed1]="square_d2_200_dart005 --steps 80000 --seed 1"
+        [handle_dart005]="square_d2_200_dart005_handle --steps 40000"
+        [handle_dart005_seed1]="square_d2_200_dart005_handle --steps 40000 --seed 1"
     )
     ;;
 *)
