@@ -6,7 +6,7 @@
 # chosen there, never on the evaluation starts.
 #   stack: clean demos (100, two seeds; 300), 100 demos with one step of observation history,
 #          100 DART demos (execution noise 5 mm, four seeds; 10 mm); 40k steps.
-#   square: 200 DART demos (5 mm) of the handle-grasping expert at 40k steps, two seeds. (The
+#   square: 200 DART demos (5 mm) of the handle-grasping expert at 40k steps (two seeds) and 80k. (The
 #          dart005* result files in docs/edp/square-screen/ are of the earlier ring-grasping
 #          expert, commit 1a83fa5 and before; this script no longer makes its demos.)
 # Resumable: demos, trained weights (and their training checkpoints) and result files that exist
@@ -55,6 +55,7 @@ square)
     CONFIGS=(
         [handle_dart005]="square_d2_200_dart005_handle --steps 40000"
         [handle_dart005_seed1]="square_d2_200_dart005_handle --steps 40000 --seed 1"
+        [handle_dart005_80k]="square_d2_200_dart005_handle --steps 80000"
     )
     ;;
 *)
@@ -82,8 +83,8 @@ done
 $PY - "$OUT" <<'PYEOF'
 import json, pathlib, sys
 out = pathlib.Path(sys.argv[1])
-print("| policy | validation (200 starts) | eval (200 pinned starts) | failures' own draws | never lifted | opened | slipped | held at horizon | successes after a drop |")
-print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+print("| policy | validation (200 starts) | eval (200 pinned starts) | failures' own draws | never lifted | opened | slipped | held at horizon | successes after a drop | reached the target |")
+print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
 for f in sorted(out.glob("*.failures.json")):
     name = f.name.removesuffix(".failures.json")
     fl = json.loads(f.read_text())
@@ -95,5 +96,5 @@ for f in sorted(out.glob("*.failures.json")):
     c = fl["counts"]
     print(f"| {name} | {rate(val) if val else '-'} | {rate(ev) if ev else '-'} | {rate(fl)} | {c.get('never lifted', 0)} | "
           f"{c.get('opened away', 0) + c.get('opened over target', 0)} | {c.get('slipped', 0)} | "
-          f"{c.get('held at horizon', 0)} | {fl['successes_after_a_drop']} |")
+          f"{c.get('held at horizon', 0)} | {fl['successes_after_a_drop']} | {fl.get('reached_target', '-')} |")
 PYEOF

@@ -359,6 +359,18 @@ def test_dart_demos_record_the_clean_command_while_executing_a_perturbed_one(tmp
         record("lift", 1, tmp_path / "bad.hdf5", progress=False, execution_noise=-1.0)
 
 
+def test_expert_under_execution_noise_counts_failures_by_phase():
+    from baselines.edp import expert_under_noise
+
+    clean = expert_under_noise("lift", 2, 0.0)
+    assert clean["successes"] == 2 and clean["failed_in_phase"] == {}
+    # 5 cm of position noise: the fingers miss the 5 cm cube, and each failure names its phases.
+    noisy = expert_under_noise("lift", 2, 0.05)
+    assert noisy["successes"] < 2
+    assert sum(noisy["failed_in_phase"].values()) == 2 - noisy["successes"]
+    assert all(p.startswith("approach") for p in noisy["failure_paths"])
+
+
 def test_history_conditioned_policy_stays_equivariant(lift_demos, tmp_path):
     from baselines.edp import conditioning
 
@@ -394,6 +406,8 @@ def test_failure_breakdown_accounts_for_every_episode(tiny_policy):
     assert res["task"] == "lift" and len(res["outcomes"]) == 3
     assert set(res["outcomes"]) <= set(FAILURE_KINDS)
     assert sum(res["counts"].values()) == 3
+    # Lift has no place target: no episode can reach one.
+    assert res["reached_target"] == 0
     assert res["low"] - 1e-12 <= res["success_rate"] <= res["high"]
     # The same noise seed gives the same outcomes (the rollouts are deterministic).
     assert failures(tiny_policy, episodes=3)["outcomes"] == res["outcomes"]

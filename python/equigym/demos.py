@@ -37,6 +37,26 @@ def _h5py() -> Any:
     return require("h5py", "recording demonstrations")
 
 
+class ExecutionNoise:
+    """DART's execution noise for one episode: AR(1) Gaussian offsets of the commanded position
+    (stationary std ``std``, step correlation ``corr``), from the episode's own stream (the
+    expert's is apart, in Rust). ``apply`` returns the action to execute; the clean one is what
+    a demo records."""
+
+    def __init__(self, episode_seed: int, std: float, corr: float) -> None:
+        self.rng = np.random.default_rng([episode_seed, 0xDA27])
+        self.std, self.corr = std, corr
+        self.innovation = std * np.sqrt(1.0 - corr**2)
+        self.offset = self.rng.normal(0.0, std, 3)
+
+    def apply(self, action: Any) -> np.ndarray:
+        executed = np.array(action, dtype=np.float64)
+        if self.std > 0.0:
+            executed[:3] += self.offset
+            self.offset = self.corr * self.offset + self.rng.normal(0.0, self.innovation, 3)
+        return executed
+
+
 def record(
     task: str,
     episodes: int,
@@ -99,7 +119,6 @@ def record(
                 "execution_noise_corr": execution_noise_corr,
             }
         )
-        innovation = execution_noise * np.sqrt(1.0 - execution_noise_corr**2)
         while kept < episodes and tried < max_attempts:
             ep_seed = seed + tried
             tried += 1
@@ -107,16 +126,10 @@ def record(
             expert.reset(env, ep_seed)
             actions, rewards, success = [], [], False
             since_success = None
-            # The execution noise's own stream of this episode (the expert's is apart, in Rust).
-            rng = np.random.default_rng([ep_seed, 0xDA27])
-            offset = rng.normal(0.0, execution_noise, 3)
+            noise = ExecutionNoise(ep_seed, execution_noise, execution_noise_corr)
             for _ in range(env.horizon):
                 a = expert.act(env)
-                executed = np.array(a, dtype=np.float64)
-                if execution_noise > 0.0:
-                    executed[:3] += offset
-                    offset = execution_noise_corr * offset + rng.normal(0.0, innovation, 3)
-                o, r, _, truncated, info = env.step(executed)
+                o, r, _, truncated, info = env.step(noise.apply(a))
                 actions.append(a)
                 rewards.append(r)
                 if info["success"] and since_success is None:
