@@ -653,6 +653,45 @@ _FAILURE_TERMS = {
 }
 
 
+#: The carried object's and the place target's position fields, per task with a place target.
+_CARRY_FIELDS = {"stack": ("cubeA_pos", "cubeB_pos"), "square": ("nut_pos", "peg_pos")}
+#: Height (m) above its start at which an object counts as carried (the lift itself is vertical).
+CARRIED = 0.05
+
+
+def toward_target(obs: np.ndarray, actions: np.ndarray, fields: dict[str, int], task: str) -> tuple[int, int]:
+    """Does the hand carry the object towards the place target? Over one episode's steps
+    (``obs[t]`` the observation ``actions[t]`` was chosen at; ``fields`` each field's start),
+    those where the object is more than ``CARRIED`` above its start height and more than
+    ``OVER_TARGET`` from the target horizontally and the command moves the hand more than 3 mm
+    horizontally: how many point within 30 degrees of the object-to-target direction, of how
+    many. The same count on demos and on a policy's rollouts says whether it knows where to go."""
+    if task not in _CARRY_FIELDS or len(obs) == 0:
+        return 0, 0
+    obj_f, target_f = (fields[n] for n in _CARRY_FIELDS[task])
+    grip_f = fields["gripper_pos"]
+    obj, target, grip = obs[:, obj_f : obj_f + 3], obs[:, target_f : target_f + 3], obs[:, grip_f : grip_f + 3]
+    to_target = target[:, :2] - obj[:, :2]
+    command = actions[:, :2] - grip[:, :2]
+    dist, moved = np.linalg.norm(to_target, axis=1), np.linalg.norm(command, axis=1)
+    rows = (obj[:, 2] > obj[0, 2] + CARRIED) & (dist > OVER_TARGET) & (moved > 0.003)
+    cos = np.einsum("ij,ij->i", to_target[rows], command[rows]) / (dist[rows] * moved[rows])
+    return int((cos > math.cos(math.radians(30))).sum()), int(rows.sum())
+
+
+def demos_toward_target(demo_path: str | Path) -> dict[str, Any]:
+    """``toward_target`` over every demo of a file (the reference for a policy's rollouts)."""
+    from equigym import _core
+
+    data = load_demos(demo_path)
+    fields = {f["name"]: f["start"] for f in _core.TaskSymmetry(data["task"]).layout("observation")}
+    hits = total = 0
+    for d in data["demos"]:
+        h, n = toward_target(np.asarray(d["obs"]), np.asarray(d["actions"]), fields, data["task"])
+        hits, total = hits + h, total + n
+    return {"demos": str(demo_path), "toward_target": hits, "carry_steps": total, "fraction": hits / max(total, 1)}
+
+
 #: First start of the validation starts (``VALIDATION_SEED + k``): disjoint from the demos (seeds
 #: below 1000), the pinned evaluation starts (``EVAL_SEED + k``) and the steerability
 #: diagnostic's (3,000,000 + k), so that choosing among trained policies on them leaves the
@@ -677,7 +716,8 @@ def failures(
     policy's conditioning (``obs_history``) is built here, so history policies run too.
     ``successes_after_a_drop`` counts successes that regrasped after a drop, ``reached_target``
     the episodes that held the lifted object within ``OVER_TARGET`` of the place target at some
-    step (Lift has no place target: 0). ``first_start``
+    step (Lift has no place target: 0), ``carry_steps`` / ``toward_target`` the carrying steps
+    and those whose command heads for the target (``toward_target``). ``first_start``
     (default ``EVAL_SEED``) moves the starts, e.g. to the validation starts ``VALIDATION_SEED``."""
     from equigym import _core
 
@@ -701,6 +741,8 @@ def failures(
     grasped = np.zeros(episodes, bool)
     on_target = np.zeros(episodes, bool)
     reached = np.zeros(episodes, bool)
+    seen: list[list[np.ndarray]] = [[] for _ in range(episodes)]
+    commanded: list[list[np.ndarray]] = [[] for _ in range(episodes)]
     # The most recent loss of a lifted object (an episode goes on after one: the policy may
     # regrasp), and the number of drops (losses away from the target or while closed).
     last_loss: list[str | None] = [None] * episodes
@@ -716,6 +758,8 @@ def failures(
         for j, i in enumerate(idx):
             for a in chunks[j]:
                 prev[i] = obs[i]
+                seen[i].append(obs[i].copy())
+                commanded[i].append(np.asarray(a, dtype=np.float64))
                 o, _, _, truncated, info = envs[i].step(a)
                 obs[i] = o
                 g = info["grasped"] > 0.5
@@ -749,6 +793,9 @@ def failures(
             outcome[i] = last_loss[i] or "never lifted"
     counts = {k: outcome.count(k) for k in FAILURE_KINDS if k in outcome}
     low, high = _core.wilson(counts.get("success", 0), episodes)
+    fields = {f["name"]: f["start"] for f in _core.TaskSymmetry(task).layout("observation")}
+    carry = [toward_target(np.asarray(o), np.asarray(a), fields, task) for o, a in zip(seen, commanded) if o]
+    toward, carry_steps = sum(h for h, _ in carry), sum(n for _, n in carry)
     return {
         "task": task,
         "first_start": first,
@@ -759,6 +806,9 @@ def failures(
         "counts": counts,
         "successes_after_a_drop": int(sum(o == "success" and n > 0 for o, n in zip(outcome, losses))),
         "reached_target": int(reached.sum()),
+        # Steps carrying the object (see ``toward_target``) and those heading for the target.
+        "carry_steps": carry_steps,
+        "toward_target": toward,
         "outcomes": outcome,
         # Per episode: the place target's horizontal distance and the object's height (m) at its
         # last loss (None if it was never lost).
@@ -884,6 +934,8 @@ def main(argv: list[str] | None = None) -> None:
     xn.add_argument("--variant", default=None)
     xn.add_argument("--episodes", type=int, default=80)
     xn.add_argument("--noise", type=float, default=0.005)
+    cd = sub.add_parser("carry-direction", help="how often the demos' carrying commands head for the place target")
+    cd.add_argument("--demos", required=True)
     q = sub.add_parser("predictability", help="held-out error of the demo action regressed on the observation")
     q.add_argument("--demos", required=True)
     q.add_argument("--histories", nargs="+", type=int, default=[0, 1, 2])
@@ -901,6 +953,8 @@ def main(argv: list[str] | None = None) -> None:
         print(json.dumps({k: v for k, v in res.items() if k not in ("outcomes", "last_loss_at")}))
     elif a.cmd == "expert-noise":
         print(json.dumps(expert_under_noise(a.task, a.episodes, a.noise, variant=a.variant)))
+    elif a.cmd == "carry-direction":
+        print(json.dumps(demos_toward_target(a.demos)))
     elif a.cmd == "predictability":
         for row in predictability(a.demos, tuple(a.histories)):
             print(json.dumps({**row, "nmse": [round(v, 4) for v in row["nmse"]]}))

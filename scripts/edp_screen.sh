@@ -6,7 +6,7 @@
 # chosen there, never on the evaluation starts.
 #   stack: clean demos (100, two seeds; 300), 100 demos with one step of observation history,
 #          100 DART demos (execution noise 5 mm, four seeds; 10 mm); 40k steps.
-#   square: 200 DART demos (5 mm) of the handle-grasping expert at 40k steps (two seeds) and 80k. (The
+#   square: 200 DART demos (5 mm) of the handle-grasping expert at 40k steps (two seeds; 128 fields) and 80k. (The
 #          dart005* result files in docs/edp/square-screen/ are of the earlier ring-grasping
 #          expert, commit 1a83fa5 and before; this script no longer makes its demos.)
 # Resumable: demos, trained weights (and their training checkpoints) and result files that exist
@@ -56,6 +56,7 @@ square)
         [handle_dart005]="square_d2_200_dart005_handle --steps 40000"
         [handle_dart005_seed1]="square_d2_200_dart005_handle --steps 40000 --seed 1"
         [handle_dart005_80k]="square_d2_200_dart005_handle --steps 80000"
+        [handle_dart005_f128]="square_d2_200_dart005_handle --steps 40000 --hidden-fields 128"
     )
     ;;
 *)

@@ -359,6 +359,20 @@ def test_dart_demos_record_the_clean_command_while_executing_a_perturbed_one(tmp
         record("lift", 1, tmp_path / "bad.hdf5", progress=False, execution_noise=-1.0)
 
 
+def test_carry_direction_counts_only_commands_that_head_for_the_target():
+    from baselines.edp import toward_target
+
+    fields = {"nut_pos": 0, "peg_pos": 3, "gripper_pos": 6}
+    obs = np.zeros((4, 9))
+    obs[:, 3:5] = [0.3, 0.0]  # the peg, 30 cm along x
+    obs[1:, 2] = obs[1:, 8] = 0.1  # steps 1-3: the nut raised 10 cm, in the hand
+    actions = np.zeros((4, 10))
+    actions[:, :2] = [[0.02, 0.0], [0.02, 0.0], [-0.02, 0.0], [0.0, 0.001]]
+    # Step 0 is at the start height, step 3 barely moves: of steps 1 (towards) and 2 (away), one.
+    assert toward_target(obs, actions, fields, "square") == (1, 2)
+    assert toward_target(obs, actions, fields, "lift") == (0, 0)
+
+
 def test_expert_under_execution_noise_counts_failures_by_phase():
     from baselines.edp import expert_under_noise
 
@@ -406,8 +420,8 @@ def test_failure_breakdown_accounts_for_every_episode(tiny_policy):
     assert res["task"] == "lift" and len(res["outcomes"]) == 3
     assert set(res["outcomes"]) <= set(FAILURE_KINDS)
     assert sum(res["counts"].values()) == 3
-    # Lift has no place target: no episode can reach one.
-    assert res["reached_target"] == 0
+    # Lift has no place target: no episode can reach one, no step carries towards one.
+    assert res["reached_target"] == 0 and res["carry_steps"] == res["toward_target"] == 0
     assert res["low"] - 1e-12 <= res["success_rate"] <= res["high"]
     # The same noise seed gives the same outcomes (the rollouts are deterministic).
     assert failures(tiny_policy, episodes=3)["outcomes"] == res["outcomes"]
