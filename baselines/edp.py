@@ -643,6 +643,8 @@ LIFTED = 0.01
 #: handle) and fully open (8 cm). (The Square screen's ring-grasp rows, whose expert commanded
 #: 6 cm, were counted at 7 cm.)
 OPENED_WIDTH = {"lift": 0.04, "stack": 0.04, "square": 0.044}
+#: The experts' grasp width command (m), per task (open is the gripper's full 8 cm).
+GRASP_WIDTH = {"lift": 0.0, "stack": 0.0, "square": 0.008}
 #: Distance (m) from the place target within which a loss counts as "over the target".
 OVER_TARGET = 0.03
 #: The carried object's height and its horizontal distance to the place target, per task.
@@ -705,6 +707,7 @@ def failures(
     seed: int = 0,
     ddim_steps: int | None = None,
     first_start: int | None = None,
+    snap_gripper: bool = False,
 ) -> dict[str, Any]:
     """How the base policy fails, episode by episode, on the pinned evaluation starts: each
     episode runs to success or the horizon and is one of ``success``, ``never lifted``, ``held
@@ -718,7 +721,9 @@ def failures(
     the episodes that held the lifted object within ``OVER_TARGET`` of the place target at some
     step (Lift has no place target: 0), ``carry_steps`` / ``toward_target`` the carrying steps
     and those whose command heads for the target (``toward_target``). ``first_start``
-    (default ``EVAL_SEED``) moves the starts, e.g. to the validation starts ``VALIDATION_SEED``."""
+    (default ``EVAL_SEED``) moves the starts, e.g. to the validation starts ``VALIDATION_SEED``.
+    ``snap_gripper`` executes each width command as the expert's grasp width or fully open,
+    split at ``OPENED_WIDTH`` (a test of whether in-between commands lose the object)."""
     from equigym import _core
 
     pol = _core.DiffusionPolicy(str(policy_path))
@@ -757,6 +762,9 @@ def failures(
         chunks = pol.sample(cond, w, steps).reshape(len(idx), pol.chunk_len, 10)
         for j, i in enumerate(idx):
             for a in chunks[j]:
+                if snap_gripper:
+                    a = a.copy()
+                    a[9] = GRASP_WIDTH[task] if a[9] < OPENED_WIDTH[task] else envs[i].spec.max_gripper_width
                 prev[i] = obs[i]
                 seen[i].append(obs[i].copy())
                 commanded[i].append(np.asarray(a, dtype=np.float64))
@@ -805,6 +813,7 @@ def failures(
         "high": high,
         "counts": counts,
         "successes_after_a_drop": int(sum(o == "success" and n > 0 for o, n in zip(outcome, losses))),
+        "snap_gripper": snap_gripper,
         "reached_target": int(reached.sum()),
         # Steps carrying the object (see ``toward_target``) and those heading for the target.
         "carry_steps": carry_steps,
@@ -947,9 +956,12 @@ def main(argv: list[str] | None = None) -> None:
     f.add_argument(
         "--validation", action="store_true", help=f"on the validation starts ({VALIDATION_SEED} + k), for model choice"
     )
+    f.add_argument("--snap-gripper", action="store_true", help="execute width commands as grasp or open only")
     a = p.parse_args(argv)
     if a.cmd == "failures":
-        res = failures(a.policy, a.episodes, a.seed, a.ddim_steps, VALIDATION_SEED if a.validation else None)
+        res = failures(
+            a.policy, a.episodes, a.seed, a.ddim_steps, VALIDATION_SEED if a.validation else None, a.snap_gripper
+        )
         print(json.dumps({k: v for k, v in res.items() if k not in ("outcomes", "last_loss_at")}))
     elif a.cmd == "expert-noise":
         print(json.dumps(expert_under_noise(a.task, a.episodes, a.noise, variant=a.variant)))

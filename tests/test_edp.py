@@ -425,6 +425,9 @@ def test_failure_breakdown_accounts_for_every_episode(tiny_policy):
     assert res["low"] - 1e-12 <= res["success_rate"] <= res["high"]
     # The same noise seed gives the same outcomes (the rollouts are deterministic).
     assert failures(tiny_policy, episodes=3)["outcomes"] == res["outcomes"]
+    # Snapping the width commands to grasp / open changes what runs, not the bookkeeping.
+    snapped = failures(tiny_policy, episodes=3, snap_gripper=True)
+    assert snapped["snap_gripper"] and sum(snapped["counts"].values()) == 3
     # Model choice runs on validation starts, apart from the pinned evaluation starts.
     assert res["first_start"] == equigym._core.EVAL_SEED
     assert failures(tiny_policy, episodes=1, first_start=VALIDATION_SEED)["first_start"] == VALIDATION_SEED
