@@ -84,8 +84,8 @@ done
 $PY - "$OUT" <<'PYEOF'
 import json, pathlib, sys
 out = pathlib.Path(sys.argv[1])
-print("| policy | validation (200 starts) | eval (200 pinned starts) | failures' own draws | never lifted | opened | slipped | held at horizon | successes after a drop | reached the target |")
-print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+print("| policy | validation (200 starts) | eval (200 pinned starts) | failures' own draws | never lifted | opened | slipped | held at horizon | successes after a drop | reached the target | carry heads for the target |")
+print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
 for f in sorted(out.glob("*.failures.json")):
     name = f.name.removesuffix(".failures.json")
     fl = json.loads(f.read_text())
@@ -93,9 +93,11 @@ for f in sorted(out.glob("*.failures.json")):
     ev = json.loads(e.read_text()) if e.exists() else None
     v = out / f"{name}.validation.json"
     val = json.loads(v.read_text()) if v.exists() else None
+    heads = lambda r: f"{r['toward_target']}/{r['carry_steps']}" if "carry_steps" in r else "-"
     rate = lambda r: f"{r['success_rate']:.3f} [{r['low']:.3f}, {r['high']:.3f}]"
     c = fl["counts"]
     print(f"| {name} | {rate(val) if val else '-'} | {rate(ev) if ev else '-'} | {rate(fl)} | {c.get('never lifted', 0)} | "
           f"{c.get('opened away', 0) + c.get('opened over target', 0)} | {c.get('slipped', 0)} | "
-          f"{c.get('held at horizon', 0)} | {fl['successes_after_a_drop']} | {fl.get('reached_target', '-')} |")
+          f"{c.get('held at horizon', 0)} | {fl['successes_after_a_drop']} | {fl.get('reached_target', '-')} | "
+          f"{heads(fl)} |")
 PYEOF
