@@ -681,12 +681,17 @@ def toward_target(obs: np.ndarray, actions: np.ndarray, fields: dict[str, int], 
     return int((cos > math.cos(math.radians(30))).sum()), int(rows.sum())
 
 
-def demos_toward_target(demo_path: str | Path) -> dict[str, Any]:
-    """``toward_target`` over every demo of a file (the reference for a policy's rollouts)."""
+def _field_starts(task: str) -> dict[str, int]:
+    """Where each observation field of ``task`` starts."""
     from equigym import _core
 
+    return {f["name"]: f["start"] for f in _core.TaskSymmetry(task).layout("observation")}
+
+
+def demos_toward_target(demo_path: str | Path) -> dict[str, Any]:
+    """``toward_target`` over every demo of a file (the reference for a policy's rollouts)."""
     data = load_demos(demo_path)
-    fields = {f["name"]: f["start"] for f in _core.TaskSymmetry(data["task"]).layout("observation")}
+    fields = _field_starts(data["task"])
     hits = total = 0
     for d in data["demos"]:
         h, n = toward_target(np.asarray(d["obs"]), np.asarray(d["actions"]), fields, data["task"])
@@ -754,6 +759,7 @@ def failures(
     losses = np.zeros(episodes, int)
     loss_where: list[tuple[float, float] | None] = [None] * episodes
     horizon = envs[0].horizon
+    open_width = envs[0].spec.max_gripper_width
     t = 0
     while live.any() and t < horizon:
         idx = np.flatnonzero(live)
@@ -764,7 +770,7 @@ def failures(
             for a in chunks[j]:
                 if snap_gripper:
                     a = a.copy()
-                    a[9] = GRASP_WIDTH[task] if a[9] < OPENED_WIDTH[task] else envs[i].spec.max_gripper_width
+                    a[9] = GRASP_WIDTH[task] if a[9] < OPENED_WIDTH[task] else open_width
                 prev[i] = obs[i]
                 seen[i].append(obs[i].copy())
                 commanded[i].append(np.asarray(a, dtype=np.float64))
@@ -801,7 +807,7 @@ def failures(
             outcome[i] = last_loss[i] or "never lifted"
     counts = {k: outcome.count(k) for k in FAILURE_KINDS if k in outcome}
     low, high = _core.wilson(counts.get("success", 0), episodes)
-    fields = {f["name"]: f["start"] for f in _core.TaskSymmetry(task).layout("observation")}
+    fields = _field_starts(task)
     carry = [toward_target(np.asarray(o), np.asarray(a), fields, task) for o, a in zip(seen, commanded) if o]
     toward, carry_steps = sum(h for h, _ in carry), sum(n for _, n in carry)
     return {

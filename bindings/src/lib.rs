@@ -29,9 +29,9 @@ use crate::options::{env_config, options_kwargs};
 
 fn info_dict<'py>(py: Python<'py>, evaluation: &Evaluation) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
-    d.set_item("success", evaluation.success)?;
+    d.set_item("success", evaluation.success())?;
     // Stable-Baselines3 reads this key for success-rate logging.
-    d.set_item("is_success", evaluation.success)?;
+    d.set_item("is_success", evaluation.success())?;
     for (k, v) in evaluation.measures.terms() {
         d.set_item(k, v)?;
     }

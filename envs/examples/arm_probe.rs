@@ -38,7 +38,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let a = expert.act(&env);
             let s = env.step(&a)?;
             steps += 1;
-            success |= s.evaluation.success;
+            success |= s.evaluation.success();
         }
         let cube = env.observe()[0..3].to_vec();
         println!("seed {seed}: success {success} phase {} cube {:?}", expert.phase(), cube);

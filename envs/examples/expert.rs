@@ -77,7 +77,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         for _ in 0..env.horizon() {
             let action = expert.act(&env);
             steps += 1;
-            let done = env.step(&action)?.evaluation.success;
+            let done = env.step(&action)?.evaluation.success();
             let hand = env.scene().tcp_pose().translation.vector;
             lags.push((nalgebra::Vector3::new(action[0], action[1], action[2]) - hand).norm());
             if done {

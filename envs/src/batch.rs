@@ -100,7 +100,7 @@ impl BatchMember for Env {
             reward: r.reward,
             terminated: r.terminated,
             truncated: r.truncated,
-            success: r.evaluation.success,
+            success: r.evaluation.success(),
         })
     }
     fn observe_into(&mut self, obs: &mut [f64]) {

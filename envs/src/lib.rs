@@ -12,7 +12,7 @@
 //! for _ in 0..env.horizon() {
 //!     let action = expert.act(&env);
 //!     let step = env.step(&action).unwrap();
-//!     if step.evaluation.success { break; }
+//!     if step.evaluation.success() { break; }
 //! }
 //! ```
 //!

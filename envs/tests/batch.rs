@@ -78,7 +78,7 @@ fn batch_equals_single_environments_bitwise_for_any_thread_count_with_next_step_
                     r.reward.to_bits(),
                     r.terminated as u64,
                     r.truncated as u64,
-                    r.evaluation.success as u64,
+                    r.evaluation.success() as u64,
                     0,
                 ]);
                 ended[i] = r.terminated || r.truncated;

@@ -29,7 +29,7 @@ fn expert_episode(env: &mut Env, seed: u64, options: ExpertOptions) -> bool {
     expert.reset(env, seed);
     for _ in 0..env.horizon() {
         let a = expert.act(env);
-        if env.step(&a).unwrap().evaluation.success {
+        if env.step(&a).unwrap().evaluation.success() {
             return true;
         }
     }
@@ -285,7 +285,7 @@ fn dense_and_sparse_rewards() {
         let r = env.step(&a).unwrap();
         rewards.push(r.reward);
         assert!((0.0..=1.0).contains(&r.reward));
-        if r.evaluation.success {
+        if r.evaluation.success() {
             break;
         }
     }
@@ -299,7 +299,7 @@ fn dense_and_sparse_rewards() {
     loop {
         let r = env.step(&expert.act(&env)).unwrap();
         sparse.push(r.reward);
-        if r.evaluation.success {
+        if r.evaluation.success() {
             break;
         }
     }

@@ -9,7 +9,7 @@ fn hold_steps(env: &mut Env, n: usize) -> bool {
     let hold = env.current_target();
     let mut success = false;
     for _ in 0..n {
-        success = env.step(&hold).unwrap().evaluation.success;
+        success = env.step(&hold).unwrap().evaluation.success();
     }
     success
 }
@@ -24,7 +24,7 @@ fn expert_wins(task: &str, options: ExpertOptions, seeds: std::ops::Range<u64>) 
         expert.reset(&env, seed);
         for _ in 0..env.horizon() {
             let a = expert.act(&env);
-            if env.step(&a).unwrap().evaluation.success {
+            if env.step(&a).unwrap().evaluation.success() {
                 wins += 1;
                 break;
             }

@@ -230,7 +230,7 @@ fn record_demos(env: &mut Env, config: &BreakingConfig) -> Result<Vec<Demo>> {
             demo.states.push(env.get_state()?);
             let action = expert.act(env);
             demo.actions.push(action);
-            if env.step(&action)?.evaluation.success {
+            if env.step(&action)?.evaluation.success() {
                 demo.success = true;
                 break;
             }
@@ -265,7 +265,7 @@ fn invariance_rows(
                 last = Some(env.step(a)?);
             }
             let last = last.expect("probe_steps > 0");
-            let reference = outcome(env, last.reward, last.evaluation.success);
+            let reference = outcome(env, last.reward, last.evaluation.success());
             for (e, g) in elements.iter().enumerate() {
                 env.set_state(&demo.states[t])?;
                 let fit = transform_state(env, g)?;
@@ -276,7 +276,7 @@ fn invariance_rows(
                     last = Some(env.step(&ga)?);
                 }
                 let last = last.expect("probe_steps > 0");
-                let rotated = outcome(env, last.reward, last.evaluation.success);
+                let rotated = outcome(env, last.reward, last.evaluation.success());
                 let mut expected = reference.obs.clone();
                 sym.act_observation(g, &mut expected)?;
                 let obs_err = rotated.obs.iter().zip(&expected).map(|(a, b)| (a - b).powi(2)).sum::<f64>().sqrt();
@@ -346,7 +346,7 @@ fn replay_rows(
             for t in 0..budget {
                 let mut ga = *demo.actions.get(t).unwrap_or(&last);
                 sym.act_action(g, &mut ga)?;
-                if env.step(&ga)?.evaluation.success {
+                if env.step(&ga)?.evaluation.success() {
                     success = true;
                     break;
                 }

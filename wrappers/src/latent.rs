@@ -147,10 +147,10 @@ impl LatentEnv {
         let (first, rest) = self.chunk.split_at(ACTION_DIM.min(self.chunk.len()));
         let r = self.env.step(first)?;
         let mut out = LatentStep {
-            reward: r.evaluation.success as u8 as f64 - 1.0,
+            reward: r.evaluation.success() as u8 as f64 - 1.0,
             terminated: r.terminated,
             truncated: r.truncated,
-            success: r.evaluation.success,
+            success: r.evaluation.success(),
             executed: 1,
             evaluation: r.evaluation,
         };
@@ -160,8 +160,8 @@ impl LatentEnv {
             }
             let r = self.env.step(a)?;
             out.executed += 1;
-            out.reward += r.evaluation.success as u8 as f64 - 1.0;
-            out.success |= r.evaluation.success;
+            out.reward += r.evaluation.success() as u8 as f64 - 1.0;
+            out.success |= r.evaluation.success();
             out.terminated |= r.terminated;
             out.truncated |= r.truncated;
             out.evaluation = r.evaluation;

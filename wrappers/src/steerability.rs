@@ -304,7 +304,7 @@ fn rollout_with(
         for a in chunk.chunks_exact(equigym_envs::ACTION_DIM) {
             let r = env.env_mut().step(a)?;
             steps += 1;
-            success_now = r.evaluation.success;
+            success_now = r.evaluation.success();
             tracker.record(env, success_now, steps);
             if r.truncated || r.terminated {
                 ended = true;
@@ -623,8 +623,8 @@ fn probe_starts(config: &ProbeConfig, make_env: &(dyn Fn() -> Result<LatentEnv> 
             let chunk = env.decode(&w)?;
             for a in chunk.chunks_exact(equigym_envs::ACTION_DIM) {
                 let r = env.env_mut().step(a)?;
-                tracker.record(env, r.evaluation.success, env.env().elapsed_steps());
-                if r.truncated || r.evaluation.success {
+                tracker.record(env, r.evaluation.success(), env.env().elapsed_steps());
+                if r.truncated || r.evaluation.success() {
                     return Ok(out);
                 }
             }

@@ -75,24 +75,28 @@ impl Measures {
     }
 }
 
-/// The outcome of [`Task::evaluate`]: success and what the task measured.
+/// The outcome of [`Task::evaluate`]: what the task measured, success derived from it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Evaluation {
-    pub success: bool,
     pub measures: Measures,
 }
 
 impl From<Measures> for Evaluation {
     fn from(measures: Measures) -> Self {
-        Self { success: measures.success(), measures }
+        Self { measures }
     }
 }
 
 impl Evaluation {
+    /// Whether the state is a success.
+    pub fn success(&self) -> bool {
+        self.measures.success()
+    }
+
     /// The reward of `kind` for this state.
     pub fn reward(&self, kind: RewardKind) -> f64 {
         match kind {
-            RewardKind::Sparse => self.success as u8 as f64,
+            RewardKind::Sparse => self.success() as u8 as f64,
             RewardKind::Dense => self.measures.dense_reward(),
         }
     }
