@@ -88,6 +88,8 @@ def test_bad_construction_arguments(tmp_path):
         gymnasium.make("EquiLift-v0", physics={"gravity": 1.0})
     with pytest.raises(ValueError, match="timestep must be positive"):
         gymnasium.make("EquiLift-v0", physics={"timestep": 0.0})
+    with pytest.raises(ValueError, match=r"joint_limit_scale must be in \(0, 10\]"):
+        gymnasium.make("EquiLift-v0", physics={"joint_limit_scale": -1.0})
     with pytest.raises(ValueError, match="lift has no range 'peg_xy'"):
         gymnasium.make("EquiLift-v0", ranges={"peg_xy": (0, 1)})
     with pytest.raises(ValueError, match="image size"):

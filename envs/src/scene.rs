@@ -72,6 +72,11 @@ impl Scene {
         controller: Controller,
     ) -> Result<Self> {
         config.validate()?;
+        let robot = if config.joint_limit_scale == 1.0 {
+            robot
+        } else {
+            Arc::new(robot.with_joint_limit_scale(config.joint_limit_scale))
+        };
         let (mut world, statics) = build_world(&config, &table);
         let open = robot.fingers[0].upper;
         let rig = RobotRig::spawn(&mut world, robot.clone(), base, home, open, &config)?;

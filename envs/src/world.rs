@@ -115,6 +115,11 @@ pub struct PhysicsConfig {
     pub finger_speed: f64,
     /// Whether the arm's joint limits are enforced (turn off for symmetry ablations).
     pub joint_limits: bool,
+    /// Each arm joint's range scaled about its midpoint by this factor (1: the URDF's; below 1
+    /// narrower, above 1 wider). The symmetry-breaking dial: joint limits are what breaks the
+    /// scene's rotation symmetry, so their width sets how much it breaks. Physics, IK and the
+    /// reset clamp all see the scaled ranges. Ignored when `joint_limits` is off.
+    pub joint_limit_scale: f64,
     /// Whether non-adjacent arm links collide with each other.
     pub self_collision: bool,
     /// Rebuild the arm's joint-space mass matrices before every solver substep (rapier's own
@@ -143,6 +148,7 @@ impl Default for PhysicsConfig {
             max_finger_force: 70.0,
             finger_speed: 0.2,
             joint_limits: true,
+            joint_limit_scale: 1.0,
             self_collision: true,
             mass_matrix_every_substep: false,
         }
@@ -197,6 +203,12 @@ impl PhysicsConfig {
         }
         if self.pgs_iterations == 0 {
             return Err(EnvError::InvalidConfig("pgs_iterations must be at least 1".into()));
+        }
+        if !(self.joint_limit_scale.is_finite() && self.joint_limit_scale > 0.0 && self.joint_limit_scale <= 10.0) {
+            return Err(EnvError::InvalidConfig(format!(
+                "joint_limit_scale must be in (0, 10], got {}",
+                self.joint_limit_scale
+            )));
         }
         Ok(())
     }

@@ -224,6 +224,44 @@ fn joint_limits_can_be_turned_off() {
     assert!(exceeded, "without limits the wrist should pass 2.9 rad");
 }
 
+/// Turn the wrist 6 rad about the vertical from its reset pose; the largest |q7| reached.
+fn wrist_turn(cfg: EnvConfig) -> f64 {
+    let mut env = Env::new(cfg).unwrap();
+    env.reset(0).unwrap();
+    let mut a = env.current_target();
+    let tcp = env.scene().tcp_pose();
+    let mut largest: f64 = 0.0;
+    for k in 1..=60 {
+        let turn = nalgebra::UnitQuaternion::from_axis_angle(&nalgebra::Vector3::z_axis(), 0.1 * k as f64);
+        a[3..9].copy_from_slice(&equigym_envs::math::rot6d(&(turn * tcp.rotation)));
+        env.step(&a).unwrap();
+        largest = largest.max(env.scene().joint_positions()[6].abs());
+    }
+    largest
+}
+
+#[test]
+fn joint_limit_scale_narrows_every_range_about_its_midpoint() {
+    let q7_limit = 2.8973;
+    let mut cfg = EnvConfig::new("lift");
+    cfg.physics.joint_limit_scale = 0.5;
+    let env = Env::new(cfg.clone()).unwrap();
+    let (urdf, scaled) = (lift().scene().robot().joints.clone(), &env.scene().robot().joints);
+    for (u, s) in urdf.iter().zip(scaled) {
+        let (mid, half) = (0.5 * (u.lower + u.upper), 0.5 * (u.upper - u.lower));
+        assert!((s.lower - (mid - 0.5 * half)).abs() < 1e-12 && (s.upper - (mid + 0.5 * half)).abs() < 1e-12);
+    }
+    // The physics holds the narrowed wrist range (within the limit constraints' slack), and the
+    // wrist does reach it: the turn is stopped by the scaled limit, not by anything else.
+    let narrowed = wrist_turn(cfg);
+    assert!(narrowed < 0.5 * q7_limit + 0.03, "|q7| reached {narrowed} past the scaled limit");
+    assert!(narrowed > 0.5 * q7_limit - 0.1, "|q7| only reached {narrowed}");
+    assert!(wrist_turn(EnvConfig::new("lift")) > 0.5 * q7_limit + 0.5, "the URDF's range should allow more");
+    let mut bad = EnvConfig::new("lift");
+    bad.physics.joint_limit_scale = 0.0;
+    assert!(matches!(Env::new(bad), Err(EnvError::InvalidConfig(_))));
+}
+
 #[test]
 fn holding_the_current_pose_keeps_the_arm_still() {
     let mut env = lift();

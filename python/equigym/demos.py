@@ -72,6 +72,7 @@ def record(
     hold_steps: int = 0,
     execution_noise: float = 0.0,
     execution_noise_corr: float = 0.9,
+    env_options: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Record ``episodes`` demonstrations (successful ones unless ``keep_failures``).
 
@@ -82,7 +83,8 @@ def record(
     expert keeps the object where it lifted it), so that a policy trained on the demos has seen
     what to do once the task is done: without them the policy leaves its data at success and
     drops what it lifted (docs/steering.md, "Steerability"). A demo counts as successful if it
-    still succeeds at its last step.
+    still succeeds at its last step. ``env_options`` are further keyword arguments of the
+    environment (e.g. ``{"joint_limits": False}``), recorded in the file's ``env_args``.
     """
     if hold_steps < 0:
         raise ValueError(f"hold_steps must be >= 0, got {hold_steps}")
@@ -92,7 +94,8 @@ def record(
             f"{execution_noise}, {execution_noise_corr}"
         )
     h5py = _h5py()
-    env = _core.Env(task, variant=variant)
+    env_kwargs = {**({"variant": variant} if variant else {}), **(env_options or {})}
+    env = _core.Env(task, **env_kwargs)
     expert = _core.Expert(task, position_noise=position_noise, yaw_noise=yaw_noise)
     fields = env.spec.observation_layout
     max_attempts = max_attempts or 3 * episodes
@@ -107,7 +110,6 @@ def record(
         bar = None
     with h5py.File(out, "w") as f:
         data = f.create_group("data")
-        env_kwargs = {"variant": variant} if variant else {}
         data.attrs["env_args"] = json.dumps(
             {"env_name": TASK_ENV_IDS[task], "type": "equigym", "env_kwargs": env_kwargs}
         )
@@ -211,6 +213,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument(
         "--execution-noise", type=float, default=0.0, help="DART: std (m) of AR(1) noise on the executed position"
     )
+    p.add_argument("--env", default=None, help="further environment options as JSON, e.g. '{\"joint_limits\": false}'")
     p.add_argument("--execution-noise-corr", type=float, default=0.9, help="its correlation from step to step")
     a = p.parse_args(argv)
     summary = record(
@@ -225,6 +228,7 @@ def main(argv: list[str] | None = None) -> None:
         hold_steps=a.hold_steps,
         execution_noise=a.execution_noise,
         execution_noise_corr=a.execution_noise_corr,
+        env_options=json.loads(a.env) if a.env else None,
     )
     print(json.dumps(summary))
 

@@ -546,11 +546,17 @@ def _meta_env(meta: dict[str, Any]) -> dict[str, Any]:
 
 
 def controls(
-    meta: dict[str, Any], seeds: list[int], scales=CONTROL_SCALES, cache: Path | None = None, threads: int = 1
+    meta: dict[str, Any],
+    seeds: list[int],
+    scales=CONTROL_SCALES,
+    cache: Path | None = None,
+    threads: int = 1,
+    compute: bool = True,
 ) -> dict[float, list[dict[str, Any]]]:
     """The control arms of runs described by ``meta`` (run.json): the base policy with noise
     N(0, s^2 I) for each scale, one evaluation per seed on the runs' own evaluation starts and
-    episode count (``_core.evaluate_base``). Cached in ``cache`` (JSON) by settings."""
+    episode count (``_core.evaluate_base``). Cached in ``cache`` (JSON) by settings; with
+    ``compute`` false only the cached evaluations are returned (a report that runs nothing)."""
     known: dict[str, Any] = json.loads(cache.read_text()) if cache and cache.exists() else {}
     settings = {
         "task": meta["task"],
@@ -569,6 +575,8 @@ def controls(
         # Without noise the base is deterministic: one evaluation stands for every seed.
         for seed in seeds if scale > 0 else seeds[:1]:
             key = json.dumps({**settings, "scale": scale, "seed": seed}, sort_keys=True)
+            if key not in known and not compute:
+                continue
             if key not in known:
                 kw = {"policy": settings["policy"], "episodes": settings["episodes"]}
                 known[key] = _core.evaluate_base(

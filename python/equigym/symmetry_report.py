@@ -125,41 +125,54 @@ def markdown(reports: list[dict[str, Any]], command: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: Line style and label of each (joint limits, Cartesian control) mode in the plot.
+MODES = {
+    (True, False): ("-", "limits on, joint"),
+    (False, False): ("--", "limits off, joint"),
+    (True, True): (":", "limits on, Cartesian"),
+    (False, True): ("-.", "limits off, Cartesian"),
+}
+
+
 def plot(reports: list[dict[str, Any]], path: Path) -> None:
+    """Small multiples: one column per (task, reset range), the hand error of one step above
+    the success of rotated demonstrations, one line per (joint limits, controller) mode; the
+    legend below the panels."""
     matplotlib = require("matplotlib", "plotting the symmetry report")
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
-    for r in reports:
-        c = r["config"]
-        ctrl = "cart" if c["cartesian_control"] else "joint"
-        label = f"{c['task']} {c['variant'] or ''} limits {'on' if c['joint_limits'] else 'off'} {ctrl}".replace(
-            "  ", " "
-        )
-        style = (
-            ("-" if c["joint_limits"] else "--") if not c["cartesian_control"] else (":" if c["joint_limits"] else "-.")
-        )
-        angles = [row["angle_deg"] for row in r["invariance"]]
-        axes[0].plot(
-            angles, [1e3 * row["hand_error_mean"] + 1e-4 for row in r["invariance"]], style, marker="o", label=label
-        )
-        rates = [row["successes"] / row["demos"] if row["demos"] else float("nan") for row in r["replay"]]
-        axes[1].plot(angles, rates, style, marker="o", label=label)
-    axes[0].set_yscale("log")
-    axes[0].set_xlabel("rotation (deg)")
-    axes[0].set_ylabel("hand position error after one step (mm)")
-    axes[0].set_title("transition invariance: |step(gs, ga) - g step(s, a)|")
-    axes[1].set_xlabel("rotation (deg)")
-    axes[1].set_ylabel("success of rotated demonstrations")
-    axes[1].set_ylim(-0.05, 1.05)
-    axes[1].set_title("rotated open-loop expert demonstrations")
-    axes[1].legend(fontsize=7, ncol=2)
-    for ax in axes:
-        ax.set_xticks(range(0, 360, 45))
-        ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    settings = list(dict.fromkeys((r["config"]["task"], r["config"]["variant"]) for r in reports))
+    fig, axes = plt.subplots(2, len(settings), figsize=(2.3 * len(settings) + 1, 5.2), squeeze=False, sharey="row")
+    for col, (task, variant) in enumerate(settings):
+        top, bottom = axes[0][col], axes[1][col]
+        for r in reports:
+            c = r["config"]
+            if (c["task"], c["variant"]) != (task, variant):
+                continue
+            style, label = MODES[(bool(c["joint_limits"]), bool(c["cartesian_control"]))]
+            angles = [row["angle_deg"] for row in r["invariance"]]
+            top.plot(
+                angles, [1e3 * row["hand_error_mean"] + 1e-4 for row in r["invariance"]], style, marker=".", label=label
+            )
+            rates = [row["successes"] / row["demos"] if row["demos"] else float("nan") for row in r["replay"]]
+            bottom.plot(angles, rates, style, marker=".", label=label)
+        top.set_title(f"{task} {variant or ''}".strip(), fontsize=10)
+        top.set_yscale("log")
+        bottom.set_ylim(-0.05, 1.05)
+        bottom.set_xlabel("rotation (deg)")
+        for ax in (top, bottom):
+            ax.set_xticks(range(0, 360, 90))
+            ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("hand error after\none step (mm)")
+    axes[1][0].set_ylabel("rotated demos\nsucceeding")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(MODES), frameon=False)
+    fig.suptitle(
+        "Symmetry breaking: |step(gs, ga) - g step(s, a)| (top), rotated open-loop expert demonstrations (bottom)"
+    )
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
@@ -170,11 +183,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--group-order", type=int, default=8)
     parser.add_argument("--quick", action="store_true", help="Lift only, 3 episodes (a smoke run)")
     parser.add_argument("--no-plot", action="store_true")
+    parser.add_argument("--plot-only", action="store_true", help="redraw the plot from <out>/breaking.json")
     parser.add_argument("--workers", type=int, default=1, help="settings measured in parallel processes")
     args = parser.parse_args(argv)
     settings = [("lift", None)] if args.quick else SETTINGS
     episodes = 3 if args.quick else args.episodes
     out = Path(args.out)
+    if args.plot_only:
+        plot(json.loads((out / "breaking.json").read_text()), out / "breaking.png")
+        return
     out.mkdir(parents=True, exist_ok=True)
     reports = run(settings, episodes, args.group_order, workers=args.workers)
     command = "python -m equigym.symmetry_report" + (" --quick" if args.quick else f" --episodes {episodes}")

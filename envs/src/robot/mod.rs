@@ -130,6 +130,20 @@ impl RobotModel {
         }
     }
 
+    /// A copy of this model with each arm joint's range scaled about its midpoint by `scale`
+    /// (the symmetry-breaking dial, `PhysicsConfig::joint_limit_scale`). Fingers keep theirs.
+    pub fn with_joint_limit_scale(&self, scale: f64) -> RobotModel {
+        let mut m = self.clone();
+        for j in &mut m.joints {
+            if j.lower.is_finite() && j.upper.is_finite() {
+                let (mid, half) = (0.5 * (j.lower + j.upper), 0.5 * (j.upper - j.lower));
+                j.lower = mid - scale * half;
+                j.upper = mid + scale * half;
+            }
+        }
+        m
+    }
+
     /// A copy of this model with the arm's joint limits removed (for symmetry ablations).
     pub fn without_joint_limits(&self) -> RobotModel {
         let mut m = self.clone();

@@ -1,0 +1,426 @@
+"""The paper's Table 1, its ablations and a symmetry-breaking dial, as one resumable study.
+
+    python -m equigym.study plan [--parts table1 dial ...]          # the runs and what they cost
+    python -m equigym.study prepare --cell stack-nolimits           # an EDP the limits ablation needs
+    python -m equigym.study run [--parts ...] [--out docs/steering/study] [--cpus 2] [--address HOST:PORT]
+    python -m equigym.study report [--out docs/steering/study] [--update-docs]
+
+A study is a set of *cells*: one environment setting with its EDP, run by the steering methods
+over seeds at one budget (:data:`CELLS`). *Parts* name the cells each question needs
+(:data:`PARTS`): ``table1`` (Lift, Stack D1, Square D2, the paper's table), ``sb3`` (the SB3 +
+escnn cross-check on Lift), ``controller`` (a scene that commutes with rotations, the Cartesian
+controller without joint limits, against the joint controller with them), ``limits`` (Stack D1
+with and without joint limits, each with an EDP trained on demos of its own setting) and
+``dial`` (the joint-limit ranges scaled about their midpoints, ``physics.joint_limit_scale``:
+the symmetry breaking measured at each setting beside each method's steering gain). A cell
+shared by two parts (Table 1's Lift is the dial's scale 1 and the controller ablation's joint
+arm) is run once.
+
+``run`` puts every (cell, method, seed) of the chosen parts into one Ray Tune experiment, seed
+by seed so that early results cover every cell, one CPU per trial (``--address`` joins a
+cluster whose nodes hold this checkout at the same path). Each trial advances its run one
+evaluation interval at a time from the agent's own checkpoint (``equigym.steer``), so a study
+that is stopped and started again (``Tuner.restore`` where the experiment's settings are
+unchanged, a fresh experiment over the same run directories otherwise) loses at most one
+interval per running trial and gives the same bits. Before the runs it measures the symmetry
+breaking of every dial setting (:func:`equigym.symmetry.measure_breaking`); after them the
+control arms of every cell (the base policy N(0, I), narrow-noise bases N(0, s^2 I), on the
+runs' own evaluation starts and seeds; ``equigym.steer.controls``). Every file lies under
+``--out``: ``runs/<cell>/...`` (each run's ``log.csv``, ``train.csv``, ``run.json``,
+``summary.json``), ``runs/<cell>/controls.json``, ``breaking/<cell>.json``, ``study.json`` (each
+invocation's wall time).
+
+``report`` rebuilds every table and figure from those files alone: ``report.md`` (Table 1
+beside the paper's, with controls and intervals; the ablations; the dial; what the study cost),
+``success.png`` and ``mean_q.png`` (one panel per task), ``dial.png``; ``--update-docs`` also
+rewrites the generated blocks of ``docs/steering.md`` and the README.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from equigym.steer import CONTROL_SCALES, METHODS, RECIPES, _read_run, _trainable
+
+#: The repository root: relative paths of cells (EDP files) are relative to it.
+ROOT = Path(__file__).resolve().parents[2]
+#: The steering recipe every cell runs unless it names another (docs/steering.md: the steering
+#: issue's outcome: an action-space critic, training episodes ending at success, an entropy
+#: target within the actor's reach).
+RECIPE = "na-tos-h20"
+#: The paper's Table 1 (maximum evaluation success), for the report.
+PAPER = {
+    "lift": {"base": 0.617, "dsrl": 0.808, "equi": 0.840, "approx": 0.820},
+    "stack": {"base": 0.568, "dsrl": 0.740, "equi": 0.728, "approx": 0.800},
+    "square": {"base": 0.275, "dsrl": 0.552, "equi": 0.644, "approx": 0.604},
+}
+LABELS = {"dsrl": "DSRL", "equi": "Equi-DSRL", "approx": "Approx-Equi-DSRL"}
+TASK_LABELS = {"lift": "Lift", "stack": "Stack D1", "square": "Square D2"}
+#: Core-seconds per primitive env step of one run, where the study has no finished run of the
+#: cell's task and agent to measure it from (measured: the Lift recipe runs of
+#: docs/steering/arm3 and the Stack ones of arm4, one run per core, evaluations included).
+DEFAULT_COST = {("lift", "rust"): 0.020, ("stack", "rust"): 0.045, ("square", "rust"): 0.050, ("lift", "sb3"): 0.08}
+#: Seeds of the paper's table, and of the cheaper ablations.
+SEEDS = (0, 1, 2, 3, 4)
+ABLATION_SEEDS = (0, 1, 2)
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One environment setting and EDP, steered by ``methods`` over ``seeds``."""
+
+    name: str
+    task: str
+    label: str
+    steps: int
+    eval_every: int
+    seeds: tuple[int, ...] = SEEDS
+    methods: tuple[str, ...] = METHODS
+    eval_episodes: int = 50
+    env: dict[str, Any] = field(default_factory=dict)
+    #: The EDP file, relative to the repository root (default: the task's shipped one).
+    policy: str | None = None
+    agent: str = "rust"
+    recipe: str = RECIPE
+    #: The dial's setting (joint-limit scale; ``inf`` for no limits), for dial cells.
+    dial: float | None = None
+
+    def policy_path(self) -> str:
+        return self.policy or f"assets/edp/{self.task}.safetensors"
+
+    def out(self, root: Path) -> Path:
+        return root / "runs" / self.name
+
+
+def _scaled(scale: float, seeds: tuple[int, ...] = ABLATION_SEEDS) -> Cell:
+    return Cell(
+        f"lift-scale{scale:g}",
+        "lift",
+        f"Lift, joint ranges x {scale:g}",
+        16_000,
+        2_000,
+        seeds=seeds,
+        env={"physics": {"joint_limit_scale": scale}},
+        dial=scale,
+    )
+
+
+#: Every cell of the study. Budgets: Lift's recipe runs level off by 16k env steps (32k gave no
+#: more, docs/steering.md); Stack's and Square's episodes are longer and their learners slower
+#: to move, so 32k with an evaluation every 4k.
+CELLS: dict[str, Cell] = {
+    c.name: c
+    for c in (
+        Cell("lift", "lift", "Lift", 16_000, 2_000, dial=1.0),
+        Cell("stack", "stack", "Stack D1", 32_000, 4_000),
+        Cell("square", "square", "Square D2", 32_000, 4_000),
+        # The SB3 + escnn agents know DSRL's own protocol only: the cross-check runs it on both.
+        Cell("lift-dsrl", "lift", "Lift, Rust, DSRL's protocol", 16_000, 2_000, seeds=ABLATION_SEEDS, recipe="dsrl"),
+        Cell(
+            "lift-sb3",
+            "lift",
+            "Lift, SB3 + escnn, DSRL's protocol",
+            16_000,
+            2_000,
+            seeds=ABLATION_SEEDS,
+            agent="sb3",
+            recipe="dsrl",
+        ),
+        Cell(
+            "lift-cartesian-nolimits",
+            "lift",
+            "Lift, Cartesian controller, no joint limits",
+            16_000,
+            2_000,
+            seeds=ABLATION_SEEDS,
+            env={"controller": "cartesian", "joint_limits": False},
+        ),
+        Cell(
+            "stack-nolimits",
+            "stack",
+            "Stack D1, no joint limits (EDP from limit-free demos)",
+            32_000,
+            4_000,
+            seeds=ABLATION_SEEDS,
+            env={"joint_limits": False},
+            policy="docs/steering/study/edp/stack-nolimits.safetensors",
+        ),
+        _scaled(0.6),
+        _scaled(0.8),
+        _scaled(1.25),
+        Cell(
+            "lift-nolimits",
+            "lift",
+            "Lift, no joint limits",
+            16_000,
+            2_000,
+            seeds=ABLATION_SEEDS,
+            env={"joint_limits": False},
+            dial=math.inf,
+        ),
+    )
+}
+PARTS: dict[str, tuple[str, ...]] = {
+    "table1": ("lift", "stack", "square"),
+    "sb3": ("lift-dsrl", "lift-sb3"),
+    "controller": ("lift", "lift-cartesian-nolimits"),
+    "limits": ("stack", "stack-nolimits"),
+    "dial": ("lift-scale0.6", "lift-scale0.8", "lift", "lift-scale1.25", "lift-nolimits"),
+}
+#: How the limits ablation's EDP is made: the shipped Stack recipe (docs/edp.md, "Stack D1") on
+#: demos recorded without joint limits.
+PREPARE = {
+    "stack-nolimits": [
+        [
+            "-m", "equigym.demos", "--task", "stack", "--variant", "D1", "--episodes", "100",
+            "--execution-noise", "0.005", "--env", '{"joint_limits": false}',
+            "--out", "data/stack_d1_100_dart005_nolimits.hdf5",
+        ],
+        [
+            "-m", "baselines.edp", "train", "--demos", "data/stack_d1_100_dart005_nolimits.hdf5",
+            "--out", "docs/steering/study/edp/stack-nolimits.safetensors", "--steps", "40000",
+            "--hidden-fields", "64", "--seed", "0",
+        ],
+    ]
+}  # fmt: skip
+
+
+def cells_of(parts: list[str], methods: list[str] | None = None, quick: bool = False) -> list[Cell]:
+    """The cells the parts need, each once, in the order the parts name them; with ``methods``
+    only those methods' runs; ``quick``: the pipeline's smoke test (seed 0, 64 env steps,
+    2-episode evaluations every 32), to check a set-up before paying for the study."""
+    names: list[str] = []
+    for p in parts:
+        names += [n for n in PARTS[p] if n not in names]
+    cells = [CELLS[n] for n in names]
+    if methods:
+        cells = [replace(c, methods=tuple(m for m in c.methods if m in methods)) for c in cells]
+    if quick:
+        cells = [replace(c, steps=64, eval_every=32, eval_episodes=2, seeds=c.seeds[:1]) for c in cells]
+    return [c for c in cells if c.methods]
+
+
+def jobs(cells: list[Cell]) -> list[dict[str, Any]]:
+    """Every (cell, method, seed), seed-major, so that early results cover every cell."""
+    seeds = sorted({s for c in cells for s in c.seeds})
+    return [{"cell": c.name, "method": m, "seed": s} for s in seeds for c in cells for m in c.methods if s in c.seeds]
+
+
+def _run_dirs(cell: Cell, root: Path) -> list[Path]:
+    return sorted(p.parent for p in cell.out(root).rglob("seed*/log.csv"))
+
+
+def _cost_per_step(root: Path) -> dict[tuple[str, str], float]:
+    """Core-seconds per env step by (task, agent): the study's own finished runs where it has
+    them (their clocks, one run per CPU), else :data:`DEFAULT_COST`."""
+    seen: dict[tuple[str, str], list[float]] = {}
+    for cell in CELLS.values():
+        for d in _run_dirs(cell, root):
+            s = d / "summary.json"
+            if s.exists():
+                summary = json.loads(s.read_text())
+                if summary.get("env_steps"):
+                    seen.setdefault((cell.task, cell.agent), []).append(summary["seconds"] / summary["env_steps"])
+    return {**DEFAULT_COST, **{k: sum(v) / len(v) for k, v in seen.items()}}
+
+
+def plan(cells: list[Cell], root: Path, cpus: int) -> str:
+    """The runs the cells need, what is done, and the core-hours left."""
+    cost = _cost_per_step(root)
+    lines = [
+        "| cell | task | setting | methods x seeds | env steps | done | core-h left |",
+        "|---|---|---|---:|---:|---:|---:|",
+    ]
+    total_left = 0.0
+    for cell in cells:
+        n = len(cell.methods) * len(cell.seeds)
+        done = sum(1 for d in _run_dirs(cell, root) if (d / "summary.json").exists() and _steps(d) >= cell.steps)
+        left = (n - done) * cell.steps * cost[(cell.task, cell.agent)] / 3600
+        total_left += left
+        setting = json.dumps(cell.env) if cell.env else "-"
+        lines.append(
+            f"| {cell.name} | {cell.task} | {setting} | {len(cell.methods)} x {len(cell.seeds)} | "
+            f"{cell.steps:,} | {done}/{n} | {left:.1f} |"
+        )
+    lines.append("")
+    lines.append(f"Left: {total_left:.1f} core-hours, about {total_left / cpus:.1f} h on {cpus} CPUs.")
+    return "\n".join(lines)
+
+
+def _steps(d: Path) -> int:
+    return int(json.loads((d / "summary.json").read_text()).get("env_steps", 0))
+
+
+def _trial_config(cell: Cell, job: dict[str, Any], root: Path) -> dict[str, Any]:
+    """What ``equigym.steer._trainable`` takes for one job of ``cell``."""
+    return {
+        "agent": cell.agent,
+        "method": job["method"],
+        "task": cell.task,
+        "seed": job["seed"],
+        "steps": cell.steps,
+        "out": str(cell.out(root)),
+        "preset": "cpu",
+        "env": cell.env,
+        "eval_every": cell.eval_every,
+        "eval_episodes": cell.eval_episodes,
+        "policy": cell.policy_path(),
+        "ent_init": None,
+        **RECIPES[cell.recipe],
+    }
+
+
+def measure_dial(cells: list[Cell], root: Path, episodes: int) -> None:
+    """The symmetry breaking of every dial cell's setting (``breaking/<cell>.json``), measured
+    once: the expert's transition-invariance errors and its rotated demonstrations replayed."""
+    from equigym.symmetry import measure_breaking
+
+    for cell in cells:
+        path = root / "breaking" / f"{cell.name}.json"
+        if cell.dial is None or path.exists():
+            continue
+        t0 = time.perf_counter()
+        report = measure_breaking(cell.task, episodes=episodes, **cell.env)
+        report["seconds"] = time.perf_counter() - t0
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(report, indent=1) + "\n")
+        print(f"breaking of {cell.name}: {time.perf_counter() - t0:.0f} s")
+
+
+def run_controls(cells: list[Cell], root: Path, threads: int) -> None:
+    """The control arms of every cell with runs, on the runs' own starts and seeds (cached in
+    ``runs/<cell>/controls.json``; a seed is added when its first run is)."""
+    from equigym.steer import controls
+
+    for cell in cells:
+        dirs = _run_dirs(cell, root)
+        if not dirs or cell.agent != "rust":
+            continue
+        seeds = sorted({int(_read_run(d)["meta"]["seed"]) for d in dirs})
+        controls(_read_run(dirs[0])["meta"], seeds, CONTROL_SCALES, cell.out(root) / "controls.json", threads)
+
+
+def _record(root: Path, entry: dict[str, Any], update: bool) -> None:
+    path = root / "study.json"
+    record = json.loads(path.read_text()) if path.exists() else {"invocations": []}
+    if update:
+        record["invocations"][-1].update(entry)
+    else:
+        record["invocations"].append(entry)
+    record["wall_seconds"] = round(sum(i.get("wall_seconds", 0.0) for i in record["invocations"]), 1)
+    path.write_text(json.dumps(record, indent=1) + "\n")
+
+
+def run(a: argparse.Namespace) -> None:
+    try:
+        import ray
+        from ray import tune
+    except ImportError as e:  # pragma: no cover
+        raise SystemExit("the study needs Ray Tune: pip install 'equigym[sweep]' (or 'ray[tune]')") from e
+    root = Path(a.out).resolve()
+    os.chdir(ROOT)  # EDP paths are relative to the checkout, in the runs' records too
+    cells = cells_of(a.parts, a.methods, a.quick)
+    missing = [c for c in cells if not (ROOT / c.policy_path()).exists()]
+    if missing:
+        raise SystemExit(
+            "no EDP file for "
+            + ", ".join(f"{c.name} ({c.policy_path()})" for c in missing)
+            + ": python -m equigym.study prepare --cell NAME"
+        )
+    root.mkdir(parents=True, exist_ok=True)
+    started = time.time()
+    _record(root, {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "parts": a.parts, "cpus": a.cpus}, False)
+    measure_dial(cells, root, 2 if a.quick else a.breaking_episodes)
+    by_name = {c.name: c for c in cells}
+    space = {"job": tune.grid_search(jobs(cells))}
+    name = "study-" + "-".join(sorted(a.parts)) + ("-" + "-".join(sorted(a.methods)) if a.methods else "")
+    settings = json.dumps([asdict(c) for c in cells], sort_keys=True, default=str)
+    settings_file = root / "tune" / f"{name}.settings.json"
+    storage = root / "tune"
+
+    def trainable(config: dict[str, Any]) -> None:
+        os.chdir(ROOT)  # EDP paths are relative to the checkout; runs record them so
+        job = config["job"]
+        _trainable(_trial_config(by_name[job["cell"]], job, root))
+
+    ray.init(
+        address=a.address or "local",
+        num_cpus=a.cpus if a.address is None else None,
+        ignore_reinit_error=True,
+        runtime_env={"env_vars": {"PYTHONPATH": str(ROOT)}},
+    )
+    resources = tune.with_resources(trainable, {"cpu": 1})
+    same = settings_file.exists() and settings_file.read_text() == settings
+    try:
+        if same and tune.Tuner.can_restore(str(storage / name)):
+            tuner = tune.Tuner.restore(str(storage / name), resources, resume_errored=True)
+        else:
+            storage.mkdir(parents=True, exist_ok=True)
+            settings_file.write_text(settings)
+            tuner = tune.Tuner(
+                resources, param_space=space, run_config=tune.RunConfig(name=name, storage_path=str(storage), verbose=1)
+            )
+        results = tuner.fit()
+    finally:
+        ray.shutdown()
+    failed = [r for r in results if r.error is not None]
+    run_controls(cells, root, a.cpus or 1)
+    wall = time.time() - started
+    _record(root, {"wall_seconds": round(wall, 1), "trials": len(results), "failed": len(failed)}, True)
+    print(f"{len(results)} trials, {len(failed)} failed, {wall:.0f} s wall")
+    if failed:
+        raise SystemExit(f"{len(failed)} trials failed; run the same command again to resume")
+
+
+def prepare(name: str) -> None:
+    """Make the EDP file a cell needs (:data:`PREPARE`), with the commands in the checkout."""
+    if name not in PREPARE:
+        raise SystemExit(f"cells that need preparing: {sorted(PREPARE)}")
+    for args in PREPARE[name]:
+        print("+ python " + " ".join(args), flush=True)
+        subprocess.run([sys.executable, *args], check=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(
+        prog="python -m equigym.study", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    sub = p.add_subparsers(dest="cmd", required=True)
+    for name in ("plan", "run", "report"):
+        s = sub.add_parser(name)
+        s.add_argument("--out", default="docs/steering/study")
+        if name != "report":
+            s.add_argument("--parts", nargs="+", choices=sorted(PARTS), default=list(PARTS))
+            s.add_argument("--cpus", type=int, default=os.cpu_count() or 1, help="local Ray CPUs; one per trial")
+            s.add_argument("--methods", nargs="+", choices=METHODS, default=None, help="only these methods' runs")
+            s.add_argument("--quick", action="store_true", help="a smoke test of the pipeline (tiny budgets)")
+    r = sub.choices["run"]
+    r.add_argument("--address", default=None, help="join a Ray cluster (its nodes hold this checkout at this path)")
+    r.add_argument("--breaking-episodes", type=int, default=40, help="expert episodes per dial breaking measure")
+    sub.choices["report"].add_argument("--update-docs", action="store_true", help="rewrite the generated doc blocks")
+    pr = sub.add_parser("prepare")
+    pr.add_argument("--cell", required=True)
+    a = p.parse_args(argv)
+    if a.cmd == "plan":
+        print(plan(cells_of(a.parts, a.methods, a.quick), Path(a.out), a.cpus))
+    elif a.cmd == "run":
+        run(a)
+    elif a.cmd == "prepare":
+        prepare(a.cell)
+    else:
+        from equigym.study_report import write
+
+        print(write(Path(a.out), update_docs=a.update_docs))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,416 @@
+"""Every table and figure of the study (:mod:`equigym.study`), rebuilt from its files alone.
+
+    python -m equigym.study report [--out docs/steering/study] [--update-docs]
+
+Reads ``<out>/runs/<cell>/.../seed<S>/{log,train}.csv`` and ``run.json``, the cached control
+arms (``runs/<cell>/controls.json``), the dial's breaking measures (``breaking/<cell>.json``) and
+``study.json``; runs nothing. A cell with no runs yet shows ``-``, so a study in progress
+reports what it has. Writes ``report.md``, ``success.png``, ``mean_q.png`` and ``dial.png``.
+
+Figures per run: *untrained* (the first evaluation, before any gradient step), *peak* (the best
+evaluation once training has started: the paper's metric, biased upward by the choice among
+noisy evaluations), *final* (the mean of the last three evaluations). Across seeds: mean +-
+standard error. Pooled: every final episode of every seed, Wilson 95 % (the evaluations reuse
+the same pinned starts, so these intervals are narrower than the truth; compare methods by the
+s.e. over seeds). The steering *gain* of a run is its final success minus the base policy's on
+the same starts with the same seed's noise stream.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from equigym import _core
+from equigym.steer import CONTROL_SCALES, FINAL_EVALUATIONS, _read_run, controls, summarize
+from equigym.study import CELLS, LABELS, PAPER, PARTS, TASK_LABELS, Cell, _run_dirs
+
+#: Where ``--update-docs`` writes: (file, marker name) -> what goes between the markers.
+DOC_BLOCKS = (("docs/steering.md", "study"), ("README.md", "study-summary"))
+
+
+def _mean_se(xs: list[float]) -> tuple[float, float]:
+    if not xs:
+        return math.nan, math.nan
+    m = sum(xs) / len(xs)
+    if len(xs) < 2:
+        return m, math.nan
+    return m, math.sqrt(sum((x - m) ** 2 for x in xs) / (len(xs) - 1) / len(xs))
+
+
+def _fmt(xs: list[float], digits: int = 3, n: bool = True) -> str:
+    m, se = _mean_se(xs)
+    if math.isnan(m):
+        return "-"
+    text = f"{m:.{digits}f}" + ("" if math.isnan(se) else f" +- {se:.{digits}f}")
+    return text + (f" ({len(xs)})" if n else "")
+
+
+def load_cell(cell: Cell, root: Path) -> dict[str, Any]:
+    """A cell's runs by method (each with its figures and final successes) and its controls."""
+    runs: dict[str, list[dict[str, Any]]] = {}
+    meta = None
+    for d in _run_dirs(cell, root):
+        r = _read_run(d)
+        if not r["log"]:
+            continue
+        m = r["meta"]
+        meta = meta or m
+        k = int(m.get("eval_episodes", cell.eval_episodes))
+        last = r["log"][-FINAL_EVALUATIONS:]
+        wins = sum(round(float(x["success_rate"]) * k) for x in last)
+        runs.setdefault(m["method"], []).append(
+            {
+                "seed": int(m["seed"]),
+                "log": r["log"],
+                "steps": int(r["log"][-1]["env_steps"]),
+                "figures": summarize(r["log"], r["train"]),
+                "final_wins": wins,
+                "final_n": k * len(last),
+                "summary": json.loads((d / "summary.json").read_text()) if (d / "summary.json").exists() else None,
+            }
+        )
+    for rs in runs.values():
+        rs.sort(key=lambda r: r["seed"])
+    ctl: dict[float, dict[int, dict[str, Any]]] = {}
+    cache = cell.out(root) / "controls.json"
+    if meta is not None and cell.agent == "rust" and cache.exists():
+        got = controls(meta, list(cell.seeds), CONTROL_SCALES, cache, compute=False)
+        ctl = {s: {e["seed"]: e for e in evals} for s, evals in got.items()}
+    return {"cell": cell, "runs": runs, "controls": ctl}
+
+
+def _control_rates(data: dict[str, Any], scale: float) -> list[float]:
+    return [e["success_rate"] for e in data["controls"].get(scale, {}).values()]
+
+
+def _best_narrow(data: dict[str, Any]) -> tuple[float | None, list[float]]:
+    """The narrow-noise base (scale < 1) with the highest mean success, and its rates."""
+    best: tuple[float | None, list[float]] = (None, [])
+    for s in CONTROL_SCALES:
+        rates = _control_rates(data, s)
+        if s < 1.0 and rates and (best[0] is None or _mean_se(rates)[0] > _mean_se(best[1])[0]):
+            best = (s, rates)
+    return best
+
+
+def gains(data: dict[str, Any], method: str) -> list[float]:
+    """Final success minus the base's on the same seed, per seed that has both."""
+    base = data["controls"].get(1.0, {})
+    return [
+        r["figures"]["final"] - base[r["seed"]]["success_rate"]
+        for r in data["runs"].get(method, [])
+        if r["seed"] in base
+    ]
+
+
+def _pooled(runs: list[dict[str, Any]]) -> str:
+    wins, n = sum(r["final_wins"] for r in runs), sum(r["final_n"] for r in runs)
+    if not n:
+        return "-"
+    low, high = _core.wilson(wins, n)
+    return f"{wins / n:.3f} [{low:.3f}, {high:.3f}]"
+
+
+def table1(cells: dict[str, dict[str, Any]]) -> list[str]:
+    lines = []
+    for figure, title in (
+        ("peak", "Peak success (the paper's metric)"),
+        ("final", "Final success (mean of the last 3 evaluations)"),
+    ):
+        lines += [
+            f"**{title}**, mean +- s.e. over seeds (seeds); the paper's figure in brackets",
+            "",
+            "| task | base N(0, I) | best narrow-noise base | " + " | ".join(LABELS.values()) + " |",
+            "|---|---:|---:|" + "---:|" * len(LABELS),
+        ]
+        for name in PARTS["table1"]:
+            d = cells[name]
+            task = d["cell"].task
+            scale, narrow = _best_narrow(d)
+            row = [
+                f"{TASK_LABELS[task]} ({d['cell'].steps:,} steps)",
+                f"{_fmt(_control_rates(d, 1.0))} [{PAPER[task]['base']:.3f}]",
+                f"{_fmt(narrow)}" + (f" (s = {scale:g})" if scale is not None else ""),
+            ]
+            for m in LABELS:
+                xs = [r["figures"][figure] for r in d["runs"].get(m, []) if not math.isnan(r["figures"][figure])]
+                row.append(_fmt(xs) + (f" [{PAPER[task][m]:.3f}]" if figure == "peak" else ""))
+            lines.append("| " + " | ".join(row) + " |")
+        lines.append("")
+    lines += [
+        "**Untrained actor, pooled final evaluations and gain over the base** (final - base, paired by seed)",
+        "",
+        "| task | method | untrained actor | final, pooled (Wilson 95 %) | gain over the base | env steps |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+    for name in PARTS["table1"]:
+        d = cells[name]
+        for m, label in LABELS.items():
+            rs = d["runs"].get(m, [])
+            steps = ", ".join(sorted({f"{r['steps']:,}" for r in rs})) or "-"
+            lines.append(
+                f"| {TASK_LABELS[d['cell'].task]} | {label} | {_fmt([r['figures']['untrained'] for r in rs])} | "
+                f"{_pooled(rs)} | {_fmt(gains(d, m))} | {steps} |"
+            )
+    return lines + [""]
+
+
+def comparison(cells: dict[str, dict[str, Any]], names: tuple[str, ...], title: str) -> list[str]:
+    """One row per cell: its base, best narrow base, and each method's final and gain."""
+    lines = [
+        f"**{title}**",
+        "",
+        "| setting | base N(0, I) | best narrow-noise base | "
+        + " | ".join(f"{v} final / gain" for v in LABELS.values())
+        + " |",
+        "|---|---:|---:|" + "---:|" * len(LABELS),
+    ]
+    for name in names:
+        d = cells[name]
+        scale, narrow = _best_narrow(d)
+        row = [d["cell"].label, _fmt(_control_rates(d, 1.0)), _fmt(narrow) + (f" (s = {scale:g})" if scale else "")]
+        for m in LABELS:
+            finals = [r["figures"]["final"] for r in d["runs"].get(m, [])]
+            row.append(f"{_fmt(finals)} / {_fmt(gains(d, m), n=False)}" if finals else "-")
+        lines.append("| " + " | ".join(row) + " |")
+    return lines + [""]
+
+
+def breaking_of(root: Path, cell: Cell) -> dict[str, float] | None:
+    """The dial's measure for a cell: the expert's rotated demonstrations replayed (the share
+    that fails), the hand error of step(g s, g a) against g step(s, a), the unreachable share."""
+    from equigym.symmetry import summarize as summarize_breaking
+
+    path = root / "breaking" / f"{cell.name}.json"
+    if not path.exists():
+        return None
+    s = summarize_breaking(json.loads(path.read_text()))
+    return {
+        "replay_failure": 1.0 - s["rotated_replay_success"],
+        "hand_error_mm": s["hand_error_mm"],
+        "unreachable": s["unreachable"],
+    }
+
+
+def dial(cells: dict[str, dict[str, Any]], root: Path) -> tuple[list[str], list[dict[str, Any]]]:
+    points = []
+    lines = [
+        "| setting | rotated replays failing | hand error (mm) | unreachable | base N(0, I) | "
+        + " | ".join(f"{v} gain" for v in LABELS.values())
+        + " |",
+        "|---|---:|---:|---:|---:|" + "---:|" * len(LABELS),
+    ]
+    for name in PARTS["dial"]:
+        d = cells[name]
+        b = breaking_of(root, d["cell"])
+        row = [d["cell"].label]
+        row += (
+            [f"{b['replay_failure']:.3f}", f"{b['hand_error_mm']:.2f}", f"{b['unreachable']:.3f}"] if b else ["-"] * 3
+        )
+        row.append(_fmt(_control_rates(d, 1.0)))
+        row += [_fmt(gains(d, m)) for m in LABELS]
+        lines.append("| " + " | ".join(row) + " |")
+        points.append({"cell": d["cell"], "breaking": b, "gains": {m: gains(d, m) for m in LABELS}})
+    return lines + [""], points
+
+
+def _plt() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+COLOURS = {"dsrl": "tab:blue", "equi": "tab:orange", "approx": "tab:green"}
+
+
+def curves_figure(cells: dict[str, dict[str, Any]], column: str, ylabel: str, path: Path) -> None:
+    """One panel per Table 1 task: mean over seeds of ``column`` against env steps, shaded s.e.;
+    the base policy as a dashed line (success only); the legend below the panels."""
+    import numpy as np
+
+    plt = _plt()
+    names = PARTS["table1"]
+    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.4), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        d = cells[name]
+        for m, label in LABELS.items():
+            rs = d["runs"].get(m, [])
+            if not rs:
+                continue
+            n = min(len(r["log"]) for r in rs)
+            x = np.array([float(row["env_steps"]) for row in rs[0]["log"][:n]])
+            ys = np.array([[float(row[column]) for row in r["log"][:n]] for r in rs])
+            mean = ys.mean(axis=0)
+            ax.plot(x, mean, color=COLOURS[m], label=f"{label} ({len(rs)} seeds)")
+            if len(rs) > 1:
+                se = ys.std(axis=0, ddof=1) / math.sqrt(len(rs))
+                ax.fill_between(x, mean - se, mean + se, color=COLOURS[m], alpha=0.2, lw=0)
+        base = _control_rates(d, 1.0)
+        if column == "success_rate" and base:
+            ax.axhline(_mean_se(base)[0], color="k", ls="--", lw=1, label="base policy")
+        ax.set_title(f"{TASK_LABELS[d['cell'].task]}")
+        ax.set_xlabel("env steps")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel(ylabel)
+    handles, labels = {}, {}
+    for ax in axes[0]:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            handles.setdefault(lab.split(" (")[0], h)
+            labels.setdefault(lab.split(" (")[0], lab.split(" (")[0])
+    if handles:
+        fig.legend(handles.values(), labels.values(), loc="lower center", ncol=len(handles), frameon=False)
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _setting(cell: Cell) -> str:
+    return "no limits" if cell.dial == math.inf else f"x {cell.dial:g}"
+
+
+def dial_figure(points: list[dict[str, Any]], path: Path) -> None:
+    """Left: the measured breaking at each setting of the dial. Right: each method's steering
+    gain (mean +- s.e. over seeds) against that breaking, one marker per setting."""
+    plt = _plt()
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10.5, 4.0))
+    labels = [_setting(p["cell"]) for p in points]
+    measured = [p for p in points if p["breaking"] is not None]
+    xs = range(len(points))
+    for key, name, marker in (
+        ("replay_failure", "rotated expert demos that fail", "o"),
+        ("unreachable", "rotated states out of reach", "s"),
+    ):
+        left.plot(
+            [i for i, p in zip(xs, points) if p["breaking"]],
+            [p["breaking"][key] for p in measured],
+            marker=marker,
+            label=name,
+        )
+    left.set_xticks(list(xs), labels)
+    left.set_xlabel("joint ranges (the dial)")
+    left.set_ylabel("share of rotated cases")
+    left.set_title("Measured symmetry breaking")
+    left.legend(frameon=False, fontsize=8)
+    left.grid(alpha=0.3)
+    for k, (m, label) in enumerate(LABELS.items()):
+        pts = []
+        for p in measured:
+            mean, se = _mean_se(p["gains"][m])
+            if not math.isnan(mean):
+                pts.append((p["breaking"]["replay_failure"], mean, 0.0 if math.isnan(se) else se, _setting(p["cell"])))
+        pts.sort()
+        if pts:
+            offset = (k - 1) * 0.003  # side by side where settings measure alike
+            right.errorbar(
+                [x + offset for x, *_ in pts],
+                [y for _, y, *_ in pts],
+                yerr=[e for *_, e, _ in pts],
+                color=COLOURS[m],
+                marker="o",
+                ls=":",
+                capsize=3,
+                label=label,
+            )
+            if k == 0:
+                for x, y, _, name in pts:
+                    right.annotate(name, (x, y), xytext=(4, 6), textcoords="offset points", fontsize=7)
+    right.axhline(0.0, color="k", lw=0.8)
+    right.set_xlabel("breaking: share of rotated expert demos that fail")
+    right.set_ylabel("steering gain (final - base, same seeds)")
+    right.set_title("Steering gain against the breaking")
+    right.grid(alpha=0.3)
+    handles, names = right.get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, names, loc="lower center", ncol=3, frameon=False)
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def cost(cells: dict[str, dict[str, Any]], root: Path) -> list[str]:
+    lines = [
+        "| cell | method | runs | env steps | seconds per run (collect / train / evaluate) | core-min per run |",
+        "|---|---|---:|---:|---|---:|",
+    ]
+    for name, d in cells.items():
+        for m, rs in d["runs"].items():
+            done = [r["summary"] for r in rs if r["summary"]]
+            if not done:
+                continue
+            by = [s.get("seconds_by_activity") or {} for s in done]
+            parts = " / ".join(f"{sum(b.get(k, 0.0) for b in by) / len(by):.0f}" for k in ("rollout", "train", "eval"))
+            minutes = sum(s["seconds"] for s in done) / len(done) / 60
+            lines.append(f"| {name} | {m} | {len(done)} | {done[0]['env_steps']:,} | {parts} | {minutes:.1f} |")
+    record = root / "study.json"
+    if record.exists():
+        r = json.loads(record.read_text())
+        lines += [
+            "",
+            f"Wall time of the study's invocations so far: {r.get('wall_seconds', 0) / 3600:.2f} h ({len(r['invocations'])} invocations).",
+        ]
+    return lines + [""]
+
+
+def write(root: Path, update_docs: bool = False) -> str:
+    cells = {name: load_cell(CELLS[name], root) for name in CELLS}
+    dial_lines, points = dial(cells, root)
+    text = [
+        "# The study: Table 1, ablations, symmetry-breaking dial",
+        "",
+        "Generated by `python -m equigym.study report` from the files under this directory "
+        "(module docs of `equigym.study` and `equigym.study_report` for the protocol).",
+        "",
+        "## Table 1",
+        "",
+        *table1(cells),
+        "![success](success.png)",
+        "",
+        "![mean Q](mean_q.png)",
+        "",
+        "## Ablations",
+        "",
+        *comparison(
+            cells,
+            PARTS["controller"],
+            "Controller and joint limits (Lift): a scene that commutes with rotations against the shipped one",
+        ),
+        *comparison(
+            cells, PARTS["limits"], "Joint limits on Stack D1, each with an EDP trained on its own setting's demos"
+        ),
+        *comparison(cells, PARTS["sb3"], "SB3 + escnn cross-check on Lift, both agents on DSRL's own protocol"),
+        "## The symmetry-breaking dial",
+        "",
+        *dial_lines,
+        "![dial](dial.png)",
+        "",
+        "## Cost",
+        "",
+        *cost(cells, root),
+    ]
+    root.mkdir(parents=True, exist_ok=True)
+    report = "\n".join(text)
+    (root / "report.md").write_text(report)
+    curves_figure(cells, "success_rate", "success rate", root / "success.png")
+    curves_figure(cells, "mean_q", "mean Q of sampled replay batches", root / "mean_q.png")
+    dial_figure(points, root / "dial.png")
+    if update_docs:
+        summary = "\n".join(table1(cells)[: 4 + len(PARTS["table1"])])
+        for file, marker in DOC_BLOCKS:
+            _replace_block(Path(file), marker, summary)
+    return report
+
+
+def _replace_block(path: Path, marker: str, body: str) -> None:
+    begin, end = f"<!-- {marker}:begin -->", f"<!-- {marker}:end -->"
+    text = path.read_text()
+    if begin not in text or end not in text:
+        raise SystemExit(f"{path} has no {begin} ... {end} block")
+    head, rest = text.split(begin, 1)
+    _, tail = rest.split(end, 1)
+    path.write_text(f"{head}{begin}\n{body}\n{end}{tail}")

@@ -1,0 +1,97 @@
+"""The study (``python -m equigym.study``): which runs its parts need, a report that pairs each
+run with the base policy of its own seed and runs nothing itself, and (where Ray Tune is
+installed) a smoke-sized study that a second invocation restores without running anything
+again."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import pytest
+
+from equigym import steer, study, study_report
+
+
+def test_a_cell_two_parts_need_is_run_once_and_jobs_are_seed_major():
+    cells = study.cells_of(["table1", "dial"])
+    names = [c.name for c in cells]
+    assert names.count("lift") == 1 and names[:3] == ["lift", "stack", "square"]
+    assert {c.dial for c in cells if c.dial is not None} == {0.6, 0.8, 1.0, 1.25, math.inf}
+    jobs = study.jobs(study.cells_of(["controller"], methods=["dsrl"]))
+    assert [(j["cell"], j["seed"]) for j in jobs[:3]] == [("lift", 0), ("lift-cartesian-nolimits", 0), ("lift", 1)]
+    assert sum(j["cell"] == "lift" for j in jobs) == 5 and sum(j["cell"] != "lift" for j in jobs) == 3
+    quick = study.cells_of(["dial"], quick=True)
+    assert all(c.steps == 64 and c.seeds == (0,) for c in quick)
+
+
+def _fake_run(root, cell, method, seed, rates):
+    d = cell.out(root) / cell.task / method / f"seed{seed}"
+    d.mkdir(parents=True)
+    steps = [cell.eval_every * k for k in range(len(rates))]
+    with open(d / "log.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["env_steps", "success_rate", "mean_q", "seconds"])
+        w.writerows([s, r, -1.0, 1.0] for s, r in zip(steps, rates))
+    with open(d / "train.csv", "w", newline="") as f:  # training starts after the first evaluation
+        w = csv.writer(f)
+        w.writerow(["env_steps", "alpha"])
+        w.writerows([s, 0.1 if k == 0 else 0.2] for k, s in enumerate(steps))
+    meta = {"method": method, "task": cell.task, "seed": seed, "policy": cell.policy_path(), "agent": "rust"}
+    meta |= {"eval_every": cell.eval_every, "eval_episodes": 10, "joint_limits": True}
+    (d / "run.json").write_text(json.dumps(meta))
+
+
+def test_the_report_pairs_each_run_with_its_own_seeds_base_and_runs_nothing(tmp_path, monkeypatch):
+    cell = study.CELLS["lift"]
+    _fake_run(tmp_path, cell, "dsrl", 0, [0.5, 0.9, 0.6, 0.7, 0.8])  # final 0.7, peak 0.9
+    _fake_run(tmp_path, cell, "dsrl", 1, [0.5, 0.4, 0.3, 0.3, 0.3])  # final 0.3, peak 0.4
+    base = {0: 0.6, 1: 0.4}
+
+    def evaluate_base(task, *, seed, scale, episodes, policy, env, threads):
+        rate = base[seed] * scale
+        return {
+            "seed": seed,
+            "scale": scale,
+            "successes": round(rate * episodes),
+            "episodes": episodes,
+            "success_rate": rate,
+        }
+
+    monkeypatch.setattr(steer._core, "evaluate_base", evaluate_base)
+    study.run_controls([cell], tmp_path, threads=1)
+    monkeypatch.setattr(steer._core, "evaluate_base", lambda *a, **k: pytest.fail("the report evaluated"))
+    data = study_report.load_cell(cell, tmp_path)
+    assert [r["figures"]["peak"] for r in data["runs"]["dsrl"]] == [0.9, 0.4]
+    assert study_report.gains(data, "dsrl") == pytest.approx([0.7 - 0.6, 0.3 - 0.4])
+    report = study_report.write(tmp_path)
+    # the Lift row of the final table: the base 0.5 +- 0.1 over two seeds, DSRL 0.5 +- 0.2
+    assert (
+        "| Lift (16,000 steps) | 0.500 +- 0.100 (2) [0.617] | 0.250 +- 0.050 (2) (s = 0.5) | 0.500 +- 0.200 (2) |"
+        in report
+    )
+    assert "0.650 +- 0.250 (2) [0.808]" in report  # peak, beside the paper's
+    # pooled: 7 + 8 + 6 + 3 + 3 + 3 successes of 60 final episodes
+    assert "| Lift | DSRL | 0.500 +- 0.000 (2) | 0.500 [" in report
+    for figure in ("success.png", "mean_q.png", "dial.png"):
+        assert (tmp_path / figure).stat().st_size > 0
+
+
+def test_a_smoke_study_runs_and_a_second_invocation_restores_it(tmp_path):
+    pytest.importorskip("ray.tune", reason="the sweep extra (Ray Tune) is not installed")
+    argv = ["run", "--parts", "controller", "--methods", "dsrl", "--quick", "--cpus", "1", "--out", str(tmp_path)]
+    study.main(argv)
+    cell = study.CELLS["lift-cartesian-nolimits"]
+    log = cell.out(tmp_path) / "lift-nolimits-cartesian" / "dsrl" / "seed0" / "log.csv"
+    assert [int(r["env_steps"]) for r in csv.DictReader(open(log))][-2:] == [32, 64]
+    before = log.read_text()
+    experiment = tmp_path / "tune" / "study-controller-dsrl"
+    trials = sorted(p.name for p in experiment.iterdir() if p.is_dir())
+    study.main(argv)
+    assert log.read_text() == before
+    assert sorted(p.name for p in experiment.iterdir() if p.is_dir()) == trials  # Tuner.restore
+    controls = json.loads((cell.out(tmp_path) / "controls.json").read_text())
+    assert len(controls) == 3  # N(0, I), N(0, 0.5^2 I), w = 0 for seed 0
+    record = json.loads((tmp_path / "study.json").read_text())
+    assert [i["trials"] for i in record["invocations"]] == [2, 2]
