@@ -1,7 +1,7 @@
 """The study (``python -m equigym.study``): which runs its parts need, a report that pairs each
 run with the base policy of its own seed and runs nothing itself, and (where Ray Tune is
-installed) a smoke-sized study that a second invocation restores without running anything
-again."""
+installed) a smoke-sized study that stops at its deadline, resumes with the same command and,
+restored once more, runs nothing again."""
 
 from __future__ import annotations
 
@@ -78,9 +78,11 @@ def test_the_report_pairs_each_run_with_its_own_seeds_base_and_runs_nothing(tmp_
         assert (tmp_path / figure).stat().st_size > 0
 
 
-def test_a_smoke_study_runs_and_a_second_invocation_restores_it(tmp_path):
+def test_a_smoke_study_pauses_at_its_deadline_and_the_same_command_resumes_it(tmp_path):
     pytest.importorskip("ray.tune", reason="the sweep extra (Ray Tune) is not installed")
     argv = ["run", "--parts", "controller", "--methods", "dsrl", "--quick", "--cpus", "1", "--out", str(tmp_path)]
+    study.main([*argv, "--hours", "1e-9"])  # past its deadline before the first interval
+    assert not list(tmp_path.glob("runs/*/*/*/seed0/log.csv"))
     study.main(argv)
     cell = study.CELLS["lift-cartesian-nolimits"]
     log = cell.out(tmp_path) / "lift-nolimits-cartesian" / "dsrl" / "seed0" / "log.csv"
@@ -94,4 +96,4 @@ def test_a_smoke_study_runs_and_a_second_invocation_restores_it(tmp_path):
     controls = json.loads((cell.out(tmp_path) / "controls.json").read_text())
     assert len(controls) == 3  # N(0, I), N(0, 0.5^2 I), w = 0 for seed 0
     record = json.loads((tmp_path / "study.json").read_text())
-    assert [i["trials"] for i in record["invocations"]] == [2, 2]
+    assert [(i["trials"], i["paused"]) for i in record["invocations"]] == [(2, 2), (2, 0), (2, 0)]

@@ -83,8 +83,14 @@ def run(
     return _core.steer_run(method, task, seed, steps, str(out), policy=_policy(task, policy), **options)
 
 
+class Paused(RuntimeError):
+    """A trial stopped at its invocation's deadline (``deadline`` in its config, epoch seconds):
+    the run keeps its checkpoint, and restoring the experiment resumes it."""
+
+
 def _trainable(config: dict[str, Any]) -> None:
-    """One sweep trial: advance the run an evaluation interval at a time, report after each."""
+    """One sweep trial: advance the run an evaluation interval at a time, report after each;
+    past ``config["deadline"]`` (when given) stop between intervals with :class:`Paused`."""
     import tempfile
 
     from ray import tune
@@ -93,6 +99,8 @@ def _trainable(config: dict[str, Any]) -> None:
     every = c["eval_every"]
     target = every
     while True:
+        if c.get("deadline") is not None and time.time() > c["deadline"]:
+            raise Paused(f"paused at the deadline before {min(target, c['steps'])} env steps")
         target = min(target, c["steps"])
         if c["agent"] == "rust":
             s = run(

@@ -22,7 +22,11 @@ cluster whose nodes hold this checkout at the same path). Each trial advances it
 evaluation interval at a time from the agent's own checkpoint (``equigym.steer``), so a study
 that is stopped and started again (``Tuner.restore`` where the experiment's settings are
 unchanged, a fresh experiment over the same run directories otherwise) loses at most one
-interval per running trial and gives the same bits. Before the runs it measures the symmetry
+interval per running trial and gives the same bits; ``--hours`` stops the trials between
+intervals after that long (a session's budget), and the same command resumes them. A study's
+logs committed without ``tune/`` (Tune's own state, kept out of the repository) resume on
+another machine at the run level: a fresh experiment over the same run directories, in which
+finished runs return at once. Before the runs it measures the symmetry
 breaking of every dial setting (:func:`equigym.symmetry.measure_breaking`); after them the
 control arms of every cell (the base policy N(0, I), narrow-noise bases N(0, s^2 I), on the
 runs' own evaluation starts and seeds; ``equigym.steer.controls``). Every file lies under
@@ -347,10 +351,12 @@ def run(a: argparse.Namespace) -> None:
     settings_file = root / "tune" / f"{name}.settings.json"
     storage = root / "tune"
 
+    deadline = started + 3600 * a.hours if a.hours else None
+
     def trainable(config: dict[str, Any]) -> None:
         os.chdir(ROOT)  # EDP paths are relative to the checkout; runs record them so
         job = config["job"]
-        _trainable(_trial_config(by_name[job["cell"]], job, root))
+        _trainable({**_trial_config(by_name[job["cell"]], job, root), "deadline": deadline})
 
     ray.init(
         address=a.address or "local",
@@ -372,11 +378,13 @@ def run(a: argparse.Namespace) -> None:
         results = tuner.fit()
     finally:
         ray.shutdown()
-    failed = [r for r in results if r.error is not None]
+    paused = [r for r in results if r.error is not None and "Paused" in repr(r.error)]
+    failed = [r for r in results if r.error is not None and r not in paused]
     run_controls(cells, root, a.cpus or 1)
     wall = time.time() - started
-    _record(root, {"wall_seconds": round(wall, 1), "trials": len(results), "failed": len(failed)}, True)
-    print(f"{len(results)} trials, {len(failed)} failed, {wall:.0f} s wall")
+    entry = {"wall_seconds": round(wall, 1), "trials": len(results), "paused": len(paused), "failed": len(failed)}
+    _record(root, entry, True)
+    print(f"{len(results)} trials, {len(paused)} paused at the deadline, {len(failed)} failed, {wall:.0f} s wall")
     if failed:
         raise SystemExit(f"{len(failed)} trials failed; run the same command again to resume")
 
@@ -406,6 +414,16 @@ def main(argv: list[str] | None = None) -> None:
     r = sub.choices["run"]
     r.add_argument("--address", default=None, help="join a Ray cluster (its nodes hold this checkout at this path)")
     r.add_argument("--breaking-episodes", type=int, default=40, help="expert episodes per dial breaking measure")
+    r.add_argument(
+        "--hours",
+        type=float,
+        default=None,
+        help="stop the trials between evaluation intervals after this long, then evaluate the controls; "
+        "the same command resumes them",
+    )
+    c = sub.add_parser("controls", help="evaluate the control arms of the runs there are (run does it at its end)")
+    c.add_argument("--out", default="docs/steering/study")
+    c.add_argument("--cpus", type=int, default=os.cpu_count() or 1, help="evaluation threads")
     sub.choices["report"].add_argument("--update-docs", action="store_true", help="rewrite the generated doc blocks")
     pr = sub.add_parser("prepare")
     pr.add_argument("--cell", required=True)
@@ -416,6 +434,10 @@ def main(argv: list[str] | None = None) -> None:
         run(a)
     elif a.cmd == "prepare":
         prepare(a.cell)
+    elif a.cmd == "controls":
+        root = Path(a.out).resolve()
+        os.chdir(ROOT)
+        run_controls(list(CELLS.values()), root, a.cpus)
     else:
         from equigym.study_report import write
 
