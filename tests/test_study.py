@@ -29,7 +29,7 @@ def test_a_cell_two_parts_need_is_run_once_and_jobs_are_seed_major():
 def _fake_run(root, cell, method, seed, rates):
     d = cell.out(root) / cell.task / method / f"seed{seed}"
     d.mkdir(parents=True)
-    steps = [cell.eval_every * k for k in range(len(rates))]
+    steps = [cell.steps * k // (len(rates) - 1) for k in range(len(rates))]  # the last at the budget
     with open(d / "log.csv", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["env_steps", "success_rate", "mean_q", "seconds"])
@@ -47,6 +47,9 @@ def test_the_report_pairs_each_run_with_its_own_seeds_base_and_runs_nothing(tmp_
     cell = study.CELLS["lift"]
     _fake_run(tmp_path, cell, "dsrl", 0, [0.5, 0.9, 0.6, 0.7, 0.8])  # final 0.7, peak 0.9
     _fake_run(tmp_path, cell, "dsrl", 1, [0.5, 0.4, 0.3, 0.3, 0.3])  # final 0.3, peak 0.4
+    _fake_run(tmp_path, cell, "equi", 0, [0.5, 0.5])  # the budget not reached yet: not counted
+    log = cell.out(tmp_path) / "lift" / "equi" / "seed0" / "log.csv"
+    log.write_text(log.read_text().replace("16000,", "8000,"))
     base = {0: 0.6, 1: 0.4}
 
     def evaluate_base(task, *, seed, scale, episodes, policy, env, threads):
@@ -63,7 +66,7 @@ def test_the_report_pairs_each_run_with_its_own_seeds_base_and_runs_nothing(tmp_
     study.run_controls([cell], tmp_path, threads=1)
     monkeypatch.setattr(steer._core, "evaluate_base", lambda *a, **k: pytest.fail("the report evaluated"))
     data = study_report.load_cell(cell, tmp_path)
-    assert [r["figures"]["peak"] for r in data["runs"]["dsrl"]] == [0.9, 0.4]
+    assert [r["figures"]["peak"] for r in data["runs"]["dsrl"]] == [0.9, 0.4] and "equi" not in data["runs"]
     assert study_report.gains(data, "dsrl") == pytest.approx([0.7 - 0.6, 0.3 - 0.4])
     report = study_report.write(tmp_path)
     # the Lift row of the final table: the base 0.5 +- 0.1 over two seeds, DSRL 0.5 +- 0.2

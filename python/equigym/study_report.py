@@ -5,7 +5,7 @@
 Reads ``<out>/runs/<cell>/.../seed<S>/{log,train}.csv`` and ``run.json``, the cached control
 arms (``runs/<cell>/controls.json``), the dial's breaking measures (``breaking/<cell>.json``) and
 ``study.json``; runs nothing. A cell with no runs yet shows ``-``, so a study in progress
-reports what it has. Writes ``report.md``, ``success.png``, ``mean_q.png`` and ``dial.png``.
+reports what it has; a run counts once it has reached its cell's budget. Writes ``report.md``, ``success.png``, ``mean_q.png`` and ``dial.png``.
 
 Figures per run: *untrained* (the first evaluation, before any gradient step), *peak* (the best
 evaluation once training has started: the paper's metric, biased upward by the choice among
@@ -54,8 +54,8 @@ def load_cell(cell: Cell, root: Path) -> dict[str, Any]:
     meta = None
     for d in _run_dirs(cell, root):
         r = _read_run(d)
-        if not r["log"]:
-            continue
+        if not r["log"] or int(r["log"][-1]["env_steps"]) < cell.steps:
+            continue  # a run in progress counts once it reaches the cell's budget
         m = r["meta"]
         meta = meta or m
         k = int(m.get("eval_episodes", cell.eval_episodes))
@@ -335,7 +335,7 @@ def dial_figure(points: list[dict[str, Any]], path: Path) -> None:
 
 def cost(cells: dict[str, dict[str, Any]], root: Path) -> list[str]:
     lines = [
-        "| cell | method | runs | env steps | seconds per run (collect / train / evaluate) | core-min per run |",
+        "| cell | method | runs | env steps | seconds per run (collect / train / evaluate) | minutes per run |",
         "|---|---|---:|---:|---|---:|",
     ]
     for name, d in cells.items():
@@ -347,6 +347,11 @@ def cost(cells: dict[str, dict[str, Any]], root: Path) -> list[str]:
             parts = " / ".join(f"{sum(b.get(k, 0.0) for b in by) / len(by):.0f}" for k in ("rollout", "train", "eval"))
             minutes = sum(s["seconds"] for s in done) / len(done) / 60
             lines.append(f"| {name} | {m} | {len(done)} | {done[0]['env_steps']:,} | {parts} | {minutes:.1f} |")
+    lines += [
+        "",
+        "Each run's own clock (`summary.json`), one thread per run: a core-minute on a quiet core, more where "
+        "the machine was shared (two trials per 2 cores, other jobs beside them).",
+    ]
     record = root / "study.json"
     if record.exists():
         r = json.loads(record.read_text())
