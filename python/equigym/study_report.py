@@ -405,7 +405,8 @@ def write(root: Path, update_docs: bool = False) -> str:
     curves_figure(cells, "mean_q", "mean Q of sampled replay batches", root / "mean_q.png")
     dial_figure(points, root / "dial.png")
     if update_docs:
-        summary = "\n".join(table1(cells)[: 4 + len(PARTS["table1"])])
+        # the peak and the final tables (each: title, blank, header, rule, one row per task, blank)
+        summary = "\n".join(table1(cells)[: 2 * (5 + len(PARTS["table1"]))]).rstrip()
         for file, marker in DOC_BLOCKS:
             _replace_block(Path(file), marker, summary)
     return report
