@@ -260,47 +260,81 @@ def _trial_settings(a: argparse.Namespace, out: Path) -> dict[str, Any]:
     }
 
 
-def _fit(a: argparse.Namespace, trainable: Any, space: dict[str, Any], name: str, scheduler: Any = None) -> Any:
-    """Run (or, with ``--resume``, restore) the Tune experiment ``name`` under ``<out>/tune``, one
-    CPU per trial, and keep ``<out>/sweep.json``'s record of invocations; returns the results."""
+def tune_experiment(
+    trainable: Any,
+    space: dict[str, Any],
+    name: str,
+    storage: Path,
+    *,
+    address: str | None,
+    cpus: int | None,
+    restore: bool,
+    pythonpath: bool = False,
+    scheduler: Any = None,
+    before_fit: Any = None,
+) -> tuple[Any, bool]:
+    """Run the Tune experiment ``name`` under ``storage``, one CPU per trial, or restore it
+    (``Tuner.restore``, errored trials resumed) where ``restore`` and Tune can; ``pythonpath``
+    puts the checkout on the trials' path (for runners that live there). ``before_fit(restored)``
+    runs once the experiment is set up. Returns the results and whether it was restored."""
     import ray
     from ray import tune
 
-    out = Path(a.out).resolve()
-    # "local": a fresh instance of --cpus CPUs, even when another Ray instance runs on this machine
-    # (with no address Ray would join that one).
+    # "local": a fresh instance of `cpus` CPUs, even when another Ray instance runs on this
+    # machine (with no address Ray would join that one).
     ray.init(
-        address=a.address or "local",
-        num_cpus=a.cpus if a.address is None else None,
+        address=address or "local",
+        num_cpus=cpus if address is None else None,
         ignore_reinit_error=True,
-        runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}}
-        if getattr(a, "sb3", None)
-        else None,
+        runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}} if pythonpath else None,
     )
-    resources = tune.with_resources(trainable, {"cpu": 1})
-    storage = str(out / "tune")
+    try:
+        resources = tune.with_resources(trainable, {"cpu": 1})
+        restored = restore and tune.Tuner.can_restore(str(storage / name))
+        if restored:
+            tuner = tune.Tuner.restore(str(storage / name), resources, resume_errored=True)
+        else:
+            tuner = tune.Tuner(
+                resources,
+                param_space=space,
+                tune_config=tune.TuneConfig(scheduler=scheduler),
+                run_config=tune.RunConfig(name=name, storage_path=str(storage), verbose=1),
+            )
+        if before_fit is not None:
+            before_fit(restored)
+        return tuner.fit(), restored
+    finally:
+        ray.shutdown()
+
+
+def _fit(a: argparse.Namespace, trainable: Any, space: dict[str, Any], name: str, scheduler: Any = None) -> Any:
+    """Run (or, with ``--resume``, restore) the Tune experiment ``name`` under ``<out>/tune``
+    (:func:`tune_experiment`), and keep ``<out>/sweep.json``'s record of invocations; returns the
+    results."""
+    out = Path(a.out).resolve()
     started = time.time()
-    restored = a.resume and tune.Tuner.can_restore(str(Path(storage) / name))
-    if restored:
-        tuner = tune.Tuner.restore(str(Path(storage) / name), resources, resume_errored=True)
-    else:
-        tuner = tune.Tuner(
-            resources,
-            param_space=space,
-            tune_config=tune.TuneConfig(scheduler=scheduler),
-            run_config=tune.RunConfig(name=name, storage_path=storage, verbose=1),
-        )
     # One record per invocation, written when it starts and completed when it ends, so that a
     # resumed sweep's wall time adds up (a killed invocation keeps its start time only).
     record_path = out / "sweep.json"
     record = json.loads(record_path.read_text()) if a.resume and record_path.exists() else {}
     invocations = record.get("invocations", [])
-    invocations.append({"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "args": vars(a), "restored": restored})
-    _write_sweep_record(record_path, invocations, out)
-    try:
-        results = tuner.fit()
-    finally:
-        ray.shutdown()
+
+    def started_record(restored: bool) -> None:
+        invocations.append({"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "args": vars(a), "restored": restored})
+        _write_sweep_record(record_path, invocations, out)
+
+    results, _ = tune_experiment(
+        trainable,
+        space,
+        name,
+        out / "tune",
+        address=a.address,
+        cpus=a.cpus,
+        restore=a.resume,
+        pythonpath=bool(getattr(a, "sb3", None)),
+        scheduler=scheduler,
+        before_fit=started_record,
+    )
     wall = time.time() - started
     failed = [r for r in results if r.error is not None]
     invocations[-1].update({"wall_seconds": round(wall, 1), "trials": len(results), "failed": len(failed)})
@@ -534,14 +568,21 @@ def _pooled(successes: int, n: int) -> str:
     return f"{successes}/{n} = {successes / n:.3f} [{low:.3f}, {high:.3f}]" if n else "-"
 
 
-def _mean_se(xs: list[float]) -> str:
+def mean_se(xs: list[float]) -> tuple[float, float]:
+    """Mean and standard error of ``xs`` (nan where there are too few values)."""
     if not xs:
-        return "-"
+        return math.nan, math.nan
     m = sum(xs) / len(xs)
     if len(xs) < 2:
-        return f"{m:.3f}"
-    se = math.sqrt(sum((x - m) ** 2 for x in xs) / (len(xs) - 1) / len(xs))
-    return f"{m:.3f} +- {se:.3f}"
+        return m, math.nan
+    return m, math.sqrt(sum((x - m) ** 2 for x in xs) / (len(xs) - 1) / len(xs))
+
+
+def _mean_se(xs: list[float]) -> str:
+    m, se = mean_se(xs)
+    if math.isnan(m):
+        return "-"
+    return f"{m:.3f}" if math.isnan(se) else f"{m:.3f} +- {se:.3f}"
 
 
 def _meta_env(meta: dict[str, Any]) -> dict[str, Any]:

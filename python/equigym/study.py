@@ -53,7 +53,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from equigym.steer import CONTROL_SCALES, METHODS, RECIPES, _read_run, _trainable
+from equigym.steer import CONTROL_SCALES, METHODS, RECIPES, _read_run, _trainable, tune_experiment
 
 #: The repository root: relative paths of cells (EDP files) are relative to it.
 ROOT = Path(__file__).resolve().parents[2]
@@ -309,7 +309,8 @@ def run_controls(cells: list[Cell], root: Path, threads: int) -> None:
         dirs = _run_dirs(cell, root)
         if not dirs or cell.agent != "rust":
             continue
-        seeds = sorted({int(_read_run(d)["meta"]["seed"]) for d in dirs})
+        metas = [json.loads((d / "run.json").read_text()) for d in dirs]
+        seeds = sorted({int(m["seed"]) for m in metas})
         controls(_read_run(dirs[0])["meta"], seeds, CONTROL_SCALES, cell.out(root) / "controls.json", threads)
 
 
@@ -326,7 +327,6 @@ def _record(root: Path, entry: dict[str, Any], update: bool) -> None:
 
 def run(a: argparse.Namespace) -> None:
     try:
-        import ray
         from ray import tune
     except ImportError as e:  # pragma: no cover
         raise SystemExit("the study needs Ray Tune: pip install 'equigym[sweep]' (or 'ray[tune]')") from e
@@ -358,26 +358,23 @@ def run(a: argparse.Namespace) -> None:
         job = config["job"]
         _trainable({**_trial_config(by_name[job["cell"]], job, root), "deadline": deadline})
 
-    ray.init(
-        address=a.address or "local",
-        num_cpus=a.cpus if a.address is None else None,
-        ignore_reinit_error=True,
-        runtime_env={"env_vars": {"PYTHONPATH": str(ROOT)}},
-    )
-    resources = tune.with_resources(trainable, {"cpu": 1})
-    same = settings_file.exists() and settings_file.read_text() == settings
-    try:
-        if same and tune.Tuner.can_restore(str(storage / name)):
-            tuner = tune.Tuner.restore(str(storage / name), resources, resume_errored=True)
-        else:
-            storage.mkdir(parents=True, exist_ok=True)
+    def settings_written(restored: bool) -> None:
+        if not restored:
             settings_file.write_text(settings)
-            tuner = tune.Tuner(
-                resources, param_space=space, run_config=tune.RunConfig(name=name, storage_path=str(storage), verbose=1)
-            )
-        results = tuner.fit()
-    finally:
-        ray.shutdown()
+
+    storage.mkdir(parents=True, exist_ok=True)
+    same = settings_file.exists() and settings_file.read_text() == settings
+    results, _ = tune_experiment(
+        trainable,
+        space,
+        name,
+        storage,
+        address=a.address,
+        cpus=a.cpus,
+        restore=same,
+        pythonpath=True,
+        before_fit=settings_written,
+    )
     paused = [r for r in results if r.error is not None and "Paused" in repr(r.error)]
     failed = [r for r in results if r.error is not None and r not in paused]
     run_controls(cells, root, a.cpus or 1)

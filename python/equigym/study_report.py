@@ -24,24 +24,15 @@ from pathlib import Path
 from typing import Any
 
 from equigym import _core
-from equigym.steer import CONTROL_SCALES, FINAL_EVALUATIONS, _read_run, controls, summarize
+from equigym.steer import CONTROL_SCALES, FINAL_EVALUATIONS, _read_run, controls, mean_se, summarize
 from equigym.study import CELLS, LABELS, PAPER, PARTS, TASK_LABELS, Cell, _run_dirs
 
 #: Where ``--update-docs`` writes: (file, marker name) -> what goes between the markers.
 DOC_BLOCKS = (("docs/steering.md", "study"), ("README.md", "study-summary"))
 
 
-def _mean_se(xs: list[float]) -> tuple[float, float]:
-    if not xs:
-        return math.nan, math.nan
-    m = sum(xs) / len(xs)
-    if len(xs) < 2:
-        return m, math.nan
-    return m, math.sqrt(sum((x - m) ** 2 for x in xs) / (len(xs) - 1) / len(xs))
-
-
 def _fmt(xs: list[float], digits: int = 3, n: bool = True) -> str:
-    m, se = _mean_se(xs)
+    m, se = mean_se(xs)
     if math.isnan(m):
         return "-"
     text = f"{m:.{digits}f}" + ("" if math.isnan(se) else f" +- {se:.{digits}f}")
@@ -91,7 +82,7 @@ def _best_narrow(data: dict[str, Any]) -> tuple[float | None, list[float]]:
     best: tuple[float | None, list[float]] = (None, [])
     for s in CONTROL_SCALES:
         rates = _control_rates(data, s)
-        if s < 1.0 and rates and (best[0] is None or _mean_se(rates)[0] > _mean_se(best[1])[0]):
+        if s < 1.0 and rates and (best[0] is None or mean_se(rates)[0] > mean_se(best[1])[0]):
             best = (s, rates)
     return best
 
@@ -253,7 +244,7 @@ def curves_figure(cells: dict[str, dict[str, Any]], column: str, ylabel: str, pa
                 ax.fill_between(x, mean - se, mean + se, color=COLOURS[m], alpha=0.2, lw=0)
         base = _control_rates(d, 1.0)
         if column == "success_rate" and base:
-            ax.axhline(_mean_se(base)[0], color="k", ls="--", lw=1, label="base policy")
+            ax.axhline(mean_se(base)[0], color="k", ls="--", lw=1, label="base policy")
         ax.set_title(f"{TASK_LABELS[d['cell'].task]}")
         ax.set_xlabel("env steps")
         ax.grid(alpha=0.3)
@@ -301,7 +292,7 @@ def dial_figure(points: list[dict[str, Any]], path: Path) -> None:
     for k, (m, label) in enumerate(LABELS.items()):
         pts = []
         for p in measured:
-            mean, se = _mean_se(p["gains"][m])
+            mean, se = mean_se(p["gains"][m])
             if not math.isnan(mean):
                 pts.append((p["breaking"]["replay_failure"], mean, 0.0 if math.isnan(se) else se, _setting(p["cell"])))
         pts.sort()
