@@ -100,3 +100,30 @@ def test_a_smoke_study_pauses_at_its_deadline_and_the_same_command_resumes_it(tm
     assert len(controls) == 3  # N(0, I), N(0, 0.5^2 I), w = 0 for seed 0
     record = json.loads((tmp_path / "study.json").read_text())
     assert [(i["trials"], i["paused"]) for i in record["invocations"]] == [(2, 2), (2, 0), (2, 0)]
+
+
+def test_the_claims_read_gains_and_q_by_the_two_standard_error_rule():
+    def run(seed, final, q):
+        return {"seed": seed, "figures": {"final": final}, "trained_q": q}
+
+    empty = {name: {"cell": c, "runs": {}, "controls": {}, "breaking": None} for name, c in study.CELLS.items()}
+    base = {1.0: {s: {"success_rate": 0.5} for s in range(3)}}
+    lift = {
+        "cell": study.CELLS["lift"],
+        "controls": base,
+        "breaking": {"replay_failure": 0.036},
+        "runs": {
+            # +0.10, +0.12, +0.08: more than two s.e. above 0; a mean Q above 0 once trained
+            "equi": [run(0, 0.60, [-1.0, 0.5]), run(1, 0.62, [-2.0]), run(2, 0.58, [-3.0])],
+            # +0.10, -0.10, 0.00: no clear gain; Equi - Approx = 0.00, 0.22, 0.08
+            "approx": [run(0, 0.60, [-1.0]), run(1, 0.40, [-1.0]), run(2, 0.50, [-1.0])],
+            "dsrl": [run(0, 0.45, [-1.0])],  # one seed: too few to read
+        },
+    }
+    lines = "\n".join(study_report.claims({**empty, "lift": lift}))
+    assert "| Lift | -0.050 (1) | 0.100 +- 0.012 (3) up | 0.000 +- 0.058 (3) none | improved by Equi-DSRL |" in lines
+    assert "| Stack D1 | - | - | - | not run yet |" in lines
+    # highest and final mean Q over seeds: (0.5 - 2 - 3) / 3, one run above 0
+    assert "| Lift | Equi-DSRL | 1 of 3 | -1.5 +- 1.0 (3) | -1.5 +- 1.0 (3) |" in lines
+    assert "| Lift | Approx-Equi-DSRL | 0 of 3 |" in lines
+    assert "| Lift | 0.036 | 0.100 +- 0.064 (3) | none | 0.100 +- 0.012 (3) | 0.000 +- 0.058 (3) |" in lines

@@ -4,7 +4,8 @@
 //! One call to [`BatchEnv::step`] takes all B actions as one flat `B x action_dim` slice,
 //! checks every one of them before anything moves (a bad action is an error and no
 //! environment has stepped), then steps the environments in parallel on the batch's own
-//! rayon pool and leaves observations, rewards and flags in buffers owned by the batch.
+//! rayon pool, slowest first by each one's last step time (so that the threads finish
+//! together), and leaves observations, rewards and flags in buffers owned by the batch.
 //!
 //! # Auto-reset
 //!
@@ -55,6 +56,9 @@
 //! index out of range; nothing here panics on user input.
 
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Mutex, PoisonError};
+use std::time::Instant;
 
 use crate::env::{Env, ACTION_DIM};
 use crate::error::{check_finite, EnvError, Result};
@@ -183,6 +187,8 @@ struct Slot<E> {
     seeds: EpisodeRng,
     episode_seed: u64,
     episode: u64,
+    /// How long this member's last stepped call took (ns): the batch steps the slowest first.
+    last_step_ns: u64,
 }
 
 impl<E: BatchMember> Slot<E> {
@@ -216,6 +222,61 @@ impl<E: BatchMember> Slot<E> {
             self.reset_now = true;
         }
         Ok(())
+    }
+}
+
+/// Step the members of one batch step (those where `stepped`; the others only clear their
+/// flags) on `pool`, longest first. The threads take members from one shared queue ordered by
+/// each member's last step time, slowest first (longest-processing-time-first list
+/// scheduling): a member's cost changes slowly from step to step (contacts, resets), so the
+/// members left for the end of the batch step are the quick ones and the threads finish
+/// together. Rayon's range splitting would hand each thread a fixed half and leave the step's
+/// end to whichever member happened to be last. The order changes nothing but the timing:
+/// each member steps with its own action and state. Of several failing members, the error of
+/// the lowest index is returned.
+fn step_longest_first<E: BatchMember>(
+    pool: &rayon::ThreadPool,
+    slots: &mut [Slot<E>],
+    actions: &[f64],
+    adim: usize,
+    stepped: &(dyn Fn(usize) -> bool + Sync),
+    mode: AutoresetMode,
+) -> Result<()> {
+    let mut order: Vec<usize> = (0..slots.len()).collect();
+    order.sort_by(|&a, &b| slots[b].last_step_ns.cmp(&slots[a].last_step_ns).then(a.cmp(&b)));
+    let members: Vec<Mutex<&mut Slot<E>>> = slots.iter_mut().map(Mutex::new).collect();
+    let next = AtomicUsize::new(0);
+    let first_error: Mutex<Option<(usize, EnvError)>> = Mutex::new(None);
+    let work = || {
+        while let Some(&i) = order.get(next.fetch_add(1, Ordering::Relaxed)) {
+            let mut slot = members[i].lock().unwrap_or_else(PoisonError::into_inner);
+            if !stepped(i) {
+                slot.reset_now = false;
+                slot.step = MemberStep::default();
+                continue;
+            }
+            let t0 = Instant::now();
+            let result = slot.step(&actions[i * adim..(i + 1) * adim], mode);
+            slot.last_step_ns = u64::try_from(t0.elapsed().as_nanos()).unwrap_or(u64::MAX);
+            if let Err(e) = result {
+                let mut first = first_error.lock().unwrap_or_else(PoisonError::into_inner);
+                if first.as_ref().is_none_or(|(j, _)| i < *j) {
+                    *first = Some((i, e));
+                }
+            }
+        }
+    };
+    pool.install(|| {
+        rayon::scope(|s| {
+            for _ in 1..pool.current_num_threads() {
+                s.spawn(|_| work());
+            }
+            work();
+        })
+    });
+    match first_error.into_inner().unwrap_or_else(PoisonError::into_inner) {
+        Some((_, e)) => Err(e),
+        None => Ok(()),
     }
 }
 
@@ -272,6 +333,7 @@ impl<E: BatchMember, D: ActionDecoder> BatchEnv<E, D> {
                 seeds: episode_seed_stream(0),
                 episode_seed: 0,
                 episode: 0,
+                last_step_ns: 0,
             })
             .collect();
         Ok(Self { slots, pool, threads, mode, decoder, decoded, obs_dim, member_action_dim, needs_reset: true })
@@ -416,21 +478,8 @@ impl<E: BatchMember, D: ActionDecoder> BatchEnv<E, D> {
                 &self.decoded
             }
         };
-        let mode = self.mode;
-        let adim = self.member_action_dim;
-        let result = self.pool.install(|| {
-            self.slots.par_iter_mut().zip(actions.par_chunks_exact(adim)).enumerate().with_max_len(1).try_for_each(
-                |(i, (slot, a))| {
-                    if stepped(i) {
-                        slot.step(a, mode)
-                    } else {
-                        slot.reset_now = false;
-                        slot.step = MemberStep::default();
-                        Ok(())
-                    }
-                },
-            )
-        });
+        let result =
+            step_longest_first(&self.pool, &mut self.slots, actions, self.member_action_dim, &stepped, self.mode);
         if result.is_err() {
             // Only reachable through a member's own failure; the batch must be reset.
             self.needs_reset = true;

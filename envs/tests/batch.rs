@@ -242,3 +242,75 @@ fn edit_changes_a_member_in_place_and_reads_its_observation_again() {
     assert_eq!(bits(b.obs(2).unwrap()), bits(donor.observe()));
     assert!(b.edit(B, |_| ()).is_none());
 }
+
+/// A member that takes `millis` per step, fails while `fail` is set, and writes the batch's
+/// global step order into its observation (to see the schedule).
+struct Timed {
+    millis: u64,
+    fail: bool,
+    clock: std::sync::Arc<std::sync::atomic::AtomicUsize>,
+}
+
+impl equigym_envs::BatchMember for Timed {
+    fn observation_dim(&self) -> usize {
+        1
+    }
+    fn action_dim(&self) -> usize {
+        1
+    }
+    fn reset_into(&mut self, _seed: u64, obs: &mut [f64]) -> equigym_envs::Result<()> {
+        obs[0] = -1.0;
+        Ok(())
+    }
+    fn step_into(&mut self, _action: &[f64], obs: &mut [f64]) -> equigym_envs::Result<equigym_envs::MemberStep> {
+        obs[0] = self.clock.fetch_add(1, std::sync::atomic::Ordering::SeqCst) as f64;
+        std::thread::sleep(std::time::Duration::from_millis(self.millis));
+        if self.fail {
+            return Err(EnvError::Physics(format!("member of {} ms", self.millis)));
+        }
+        Ok(equigym_envs::MemberStep::default())
+    }
+    fn observe_into(&mut self, _obs: &mut [f64]) {}
+}
+
+fn timed_batch(millis: &[u64], threads: usize) -> BatchEnv<Timed> {
+    let clock = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let members = millis.iter().map(|&millis| Timed { millis, fail: false, clock: clock.clone() }).collect();
+    let mut b = BatchEnv::new(members, threads, AutoresetMode::Disabled).unwrap();
+    b.reset(&vec![0; millis.len()]).unwrap();
+    b
+}
+
+#[test]
+fn the_members_that_took_longest_on_the_last_step_step_first() {
+    // One thread makes the schedule the order: index order while nothing is known, then by
+    // the last step's time, slowest first (here the reverse of the index order).
+    let millis = [1, 4, 7, 10];
+    let mut b = timed_batch(&millis, 1);
+    let order = |b: &BatchEnv<Timed>| (0..4).map(|i| b.obs(i).unwrap()[0] as usize).collect::<Vec<_>>();
+    b.step(&[0.0; 4]).unwrap();
+    assert_eq!(order(&b), [0, 1, 2, 3]);
+    b.step(&[0.0; 4]).unwrap();
+    assert_eq!(order(&b), [7, 6, 5, 4], "the slowest member should step first");
+    // A member left out of a masked step keeps its last time.
+    b.step_masked(&[0.0; 4], &[true, true, true, false]).unwrap();
+    b.step(&[0.0; 4]).unwrap();
+    assert_eq!(order(&b), [14, 13, 12, 11]);
+}
+
+#[test]
+fn of_several_failing_members_the_lowest_index_reports_for_any_thread_count() {
+    for threads in [1, 2, 3] {
+        let mut b = timed_batch(&[3, 1, 6, 2, 5], threads);
+        b.step(&[0.0; 5]).unwrap();
+        for i in [1, 3] {
+            b.edit(i, |m| m.fail = true).unwrap();
+        }
+        let err = b.step(&[0.0; 5]).unwrap_err();
+        assert!(err.to_string().contains("member of 1 ms"), "{threads} threads: {err}");
+        // Every member stepped, the failing ones included: ten steps in all.
+        let last: Vec<f64> = (0..5).map(|i| b.obs(i).unwrap()[0]).collect();
+        assert!(last.iter().all(|&x| x >= 5.0), "{threads} threads: {last:?}");
+        assert!(b.step(&[0.0; 5]).is_err(), "a failed member step leaves the batch needing a reset");
+    }
+}

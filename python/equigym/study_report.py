@@ -5,7 +5,14 @@
 Reads ``<out>/runs/<cell>/.../seed<S>/{log,train}.csv`` and ``run.json``, the cached control
 arms (``runs/<cell>/controls.json``), the dial's breaking measures (``breaking/<cell>.json``) and
 ``study.json``; runs nothing. A cell with no runs yet shows ``-``, so a study in progress
-reports what it has; a run counts once it has reached its cell's budget. Writes ``report.md``, ``success.png``, ``mean_q.png`` and ``dial.png``.
+reports what it has; a run counts once it has reached its cell's budget. Writes ``report.md``,
+``success.png``, ``mean_q.png`` and ``dial.png``; ``--update-docs`` also writes the report's body
+(Table 1, figures, ablations, dial, the claims' evidence) into ``docs/steering.md``'s ``study``
+block and Table 1's peak and final rows into the README's ``study-summary`` block.
+
+The claims' evidence reads every gain and difference by one stated rule (more than two
+standard errors over at least 3 seeds), so that the verdicts move with the logs and no number
+in the prose is typed by hand.
 
 Figures per run: *untrained* (the first evaluation, before any gradient step), *peak* (the best
 evaluation once training has started: the paper's metric, biased upward by the choice among
@@ -20,15 +27,13 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 from typing import Any
 
 from equigym import _core
 from equigym.steer import CONTROL_SCALES, FINAL_EVALUATIONS, _read_run, controls, mean_se, summarize
-from equigym.study import CELLS, LABELS, PAPER, PARTS, TASK_LABELS, Cell, _run_dirs
-
-#: Where ``--update-docs`` writes: (file, marker name) -> what goes between the markers.
-DOC_BLOCKS = (("docs/steering.md", "study"), ("README.md", "study-summary"))
+from equigym.study import CELLS, LABELS, PAPER, PARTS, ROOT, TASK_LABELS, Cell, _run_dirs
 
 
 def _fmt(xs: list[float], digits: int = 3, n: bool = True) -> str:
@@ -56,6 +61,7 @@ def load_cell(cell: Cell, root: Path) -> dict[str, Any]:
             {
                 "seed": int(m["seed"]),
                 "log": r["log"],
+                "trained_q": _trained_q(r["log"], r["train"]),
                 "steps": int(r["log"][-1]["env_steps"]),
                 "figures": summarize(r["log"], r["train"]),
                 "final_wins": wins,
@@ -186,7 +192,7 @@ def breaking_of(root: Path, cell: Cell) -> dict[str, float] | None:
     }
 
 
-def dial(cells: dict[str, dict[str, Any]], root: Path) -> tuple[list[str], list[dict[str, Any]]]:
+def dial(cells: dict[str, dict[str, Any]]) -> tuple[list[str], list[dict[str, Any]]]:
     points = []
     lines = [
         "| setting | rotated replays failing | hand error (mm) | unreachable | base N(0, I) | "
@@ -196,7 +202,7 @@ def dial(cells: dict[str, dict[str, Any]], root: Path) -> tuple[list[str], list[
     ]
     for name in PARTS["dial"]:
         d = cells[name]
-        b = breaking_of(root, d["cell"])
+        b = d["breaking"]
         row = [d["cell"].label]
         row += (
             [f"{b['replay_failure']:.3f}", f"{b['hand_error_mm']:.2f}", f"{b['unreachable']:.3f}"] if b else ["-"] * 3
@@ -206,6 +212,109 @@ def dial(cells: dict[str, dict[str, Any]], root: Path) -> tuple[list[str], list[
         lines.append("| " + " | ".join(row) + " |")
         points.append({"cell": d["cell"], "breaking": b, "gains": {m: gains(d, m) for m in LABELS}})
     return lines + [""], points
+
+
+def _verdict(xs: list[float]) -> str:
+    """``up`` / ``down`` where the mean is more than two standard errors from 0 (at least 3
+    values), ``none`` otherwise, ``-`` without enough values."""
+    m, se = mean_se(xs)
+    if len(xs) < 3 or math.isnan(se):
+        return "-"
+    return "up" if m - 2 * se > 0 else "down" if m + 2 * se < 0 else "none"
+
+
+def _paired(data: dict[str, Any], a: str, b: str) -> list[float]:
+    """Method ``a``'s final success minus ``b``'s, per seed that both have run."""
+    fa = {r["seed"]: r["figures"]["final"] for r in data["runs"].get(a, [])}
+    fb = {r["seed"]: r["figures"]["final"] for r in data["runs"].get(b, [])}
+    return [fa[k] - fb[k] for k in sorted(fa.keys() & fb.keys())]
+
+
+def _trained_q(log: list[dict[str, str]], train: dict[str, dict[str, str]]) -> list[float]:
+    """Mean Q at the evaluations once training has started (as :func:`equigym.steer.summarize`
+    reads it: the entropy coefficient has left its initial value); before that the critic is
+    its initialisation."""
+    alpha0 = train.get(log[0]["env_steps"], {}).get("alpha") if log else None
+    return [
+        float(row["mean_q"])
+        for row in log
+        if alpha0 is not None and train.get(row["env_steps"], {}).get("alpha") not in (None, alpha0)
+    ]
+
+
+def claims(cells: dict[str, dict[str, Any]]) -> list[str]:
+    """The evidence for each of the paper's three claims, with the rule that reads it. A
+    difference counts when its mean is more than two standard errors (over seeds, at least 3)
+    from 0; anything less is reported as no clear difference."""
+    lines = [
+        "Rule: a gain or a difference counts when its mean over seeds is more than two standard errors from 0 "
+        "(at least 3 seeds); *up* / *down* / *none* below, *-* where there are too few seeds.",
+        "",
+        "**1. Steering improves the EDP** (final success minus the base's, paired by seed)",
+        "",
+        "| task | " + " | ".join(f"{v} gain" for v in LABELS.values()) + " | reading |",
+        "|---|" + "---:|" * len(LABELS) + "---|",
+    ]
+    for name in PARTS["table1"]:
+        d = cells[name]
+        g = {m: gains(d, m) for m in LABELS}
+        v = {m: _verdict(g[m]) for m in LABELS}
+        up = [LABELS[m] for m in LABELS if v[m] == "up"]
+        down = [LABELS[m] for m in LABELS if v[m] == "down"]
+        if all(x == "-" for x in v.values()):
+            reading = "not run yet"
+        elif up:
+            reading = "improved by " + ", ".join(up) + (" (worse: " + ", ".join(down) + ")" if down else "")
+        else:
+            reading = "no method improves it" + (" (worse: " + ", ".join(down) + ")" if down else "")
+        lines.append(
+            f"| {TASK_LABELS[d['cell'].task]} | "
+            + " | ".join(_fmt(g[m]) + ("" if v[m] == "-" else f" {v[m]}") for m in LABELS)
+            + f" | {reading} |"
+        )
+    lines += [
+        "",
+        "**2. Invariant critics avoid DSRL's Q divergence.** The latent reward is never positive (success - 1 per "
+        "primitive step), so a mean Q above 0 is an overestimate: the table counts the runs whose mean Q rose above 0 "
+        "at any evaluation once training had started, with the highest mean Q and the final one (mean +- s.e. over "
+        "seeds).",
+        "",
+        "| task | method | runs above 0 | highest mean Q | final mean Q |",
+        "|---|---|---:|---:|---:|",
+    ]
+    for name in PARTS["table1"]:
+        d = cells[name]
+        for m, label in LABELS.items():
+            rs = d["runs"].get(m, [])
+            if not rs:
+                continue
+            qs = [r["trained_q"] for r in rs if r["trained_q"]]
+            if not qs:
+                continue
+            above = sum(1 for q in qs if max(q) > 0)
+            lines.append(
+                f"| {TASK_LABELS[d['cell'].task]} | {label} | {above} of {len(qs)} | "
+                f"{_fmt([max(q) for q in qs], 1)} | {_fmt([q[-1] for q in qs], 1)} |"
+            )
+    lines += [
+        "",
+        "**3. Strict equivariance pays where the task is symmetric and is a liability where joint limits break the "
+        "symmetry; approximate equivariance adapts.** Equi-DSRL's final success minus Approx-Equi-DSRL's, paired by "
+        "seed: the limits ablation, the controller ablation, then the dial from its most broken setting (its "
+        "measure: the share of rotated expert demos that fail when replayed).",
+        "",
+        "| setting | rotated replays failing | Equi - Approx (final) | reading | Equi gain | Approx gain |",
+        "|---|---:|---:|---|---:|---:|",
+    ]
+    for name in (*PARTS["limits"], *PARTS["controller"][1:], *PARTS["dial"]):
+        d = cells[name]
+        b = None if d["breaking"] is None else d["breaking"]["replay_failure"]
+        diff = _paired(d, "equi", "approx")
+        lines.append(
+            f"| {d['cell'].label} | {'-' if b is None else f'{b:.3f}'} | {_fmt(diff)} | {_verdict(diff)} | "
+            f"{_fmt(gains(d, 'equi'))} | {_fmt(gains(d, 'approx'))} |"
+        )
+    return lines + [""]
 
 
 def _plt() -> Any:
@@ -353,23 +462,18 @@ def cost(cells: dict[str, dict[str, Any]], root: Path) -> list[str]:
     return lines + [""]
 
 
-def write(root: Path, update_docs: bool = False) -> str:
-    cells = {name: load_cell(CELLS[name], root) for name in CELLS}
-    dial_lines, points = dial(cells, root)
-    text = [
-        "# The study: Table 1, ablations, symmetry-breaking dial",
-        "",
-        "Generated by `python -m equigym.study report` from the files under this directory "
-        "(module docs of `equigym.study` and `equigym.study_report` for the protocol).",
-        "",
-        "## Table 1",
+def _body(cells: dict[str, dict[str, Any]], dial_lines: list[str], figures: str) -> list[str]:
+    """Table 1, its figures, the ablations, the dial and the claims' evidence (the report's
+    body and the docs block alike; ``figures``: the figures' directory as the reader sees it)."""
+    return [
+        "### Table 1",
         "",
         *table1(cells),
-        "![success](success.png)",
+        f"![success against env steps, one panel per task]({figures}success.png)",
         "",
-        "![mean Q](mean_q.png)",
+        f"![mean Q against env steps, one panel per task]({figures}mean_q.png)",
         "",
-        "## Ablations",
+        "### Ablations",
         "",
         *comparison(
             cells,
@@ -380,12 +484,30 @@ def write(root: Path, update_docs: bool = False) -> str:
             cells, PARTS["limits"], "Joint limits on Stack D1, each with an EDP trained on its own setting's demos"
         ),
         *comparison(cells, PARTS["sb3"], "SB3 + escnn cross-check on Lift, both agents on DSRL's own protocol"),
-        "## The symmetry-breaking dial",
+        "### The symmetry-breaking dial",
         "",
         *dial_lines,
-        "![dial](dial.png)",
+        f"![steering gain against the measured symmetry breaking]({figures}dial.png)",
         "",
-        "## Cost",
+        "### The paper's claims: the evidence",
+        "",
+        *claims(cells),
+    ]
+
+
+def write(root: Path, update_docs: bool = False) -> str:
+    cells = {name: load_cell(CELLS[name], root) for name in CELLS}
+    for d in cells.values():
+        d["breaking"] = breaking_of(root, d["cell"])
+    dial_lines, points = dial(cells)
+    text = [
+        "# The study: Table 1, ablations, symmetry-breaking dial",
+        "",
+        "Generated by `python -m equigym.study report` from the files under this directory "
+        "(module docs of `equigym.study` and `equigym.study_report` for the protocol).",
+        "",
+        *_body(cells, dial_lines, ""),
+        "### Cost",
         "",
         *cost(cells, root),
     ]
@@ -396,10 +518,11 @@ def write(root: Path, update_docs: bool = False) -> str:
     curves_figure(cells, "mean_q", "mean Q of sampled replay batches", root / "mean_q.png")
     dial_figure(points, root / "dial.png")
     if update_docs:
-        # the peak and the final tables (each: title, blank, header, rule, one row per task, blank)
+        figures = os.path.relpath(root, ROOT / "docs") + "/"
+        # README: the peak and the final tables (each: title, blank, header, rule, one row per task, blank)
         summary = "\n".join(table1(cells)[: 2 * (5 + len(PARTS["table1"]))]).rstrip()
-        for file, marker in DOC_BLOCKS:
-            _replace_block(Path(file), marker, summary)
+        _replace_block(ROOT / "docs/steering.md", "study", "\n".join(_body(cells, dial_lines, figures)).rstrip())
+        _replace_block(ROOT / "README.md", "study-summary", summary)
     return report
 
 
