@@ -104,7 +104,7 @@ def test_a_smoke_study_pauses_at_its_deadline_and_the_same_command_resumes_it(tm
 
 def test_the_claims_read_gains_and_q_by_the_two_standard_error_rule():
     def run(seed, final, q):
-        return {"seed": seed, "figures": {"final": final}, "trained_q": q}
+        return {"seed": seed, "figures": {"final": final, "peak": final}, "trained_q": q}
 
     empty = {name: {"cell": c, "runs": {}, "controls": {}, "breaking": None} for name, c in study.CELLS.items()}
     base = {1.0: {s: {"success_rate": 0.5} for s in range(3)}}
@@ -127,3 +127,12 @@ def test_the_claims_read_gains_and_q_by_the_two_standard_error_rule():
     assert "| Lift | Equi-DSRL | 1 of 3 | -1.5 +- 1.0 (3) | -1.5 +- 1.0 (3) |" in lines
     assert "| Lift | Approx-Equi-DSRL | 0 of 3 |" in lines
     assert "| Lift | 0.036 | 0.100 +- 0.064 (3) | none | 0.100 +- 0.012 (3) | 0.000 +- 0.058 (3) |" in lines
+
+
+def test_the_bases_own_peak_is_the_expected_best_of_as_many_noisy_evaluations():
+    np = pytest.importorskip("numpy")
+    assert study_report.expected_peak(0.5, 50, 1) == pytest.approx(0.5)
+    assert study_report.expected_peak(1.0, 50, 8) == pytest.approx(1.0)
+    draws = np.random.default_rng(0).binomial(50, 0.864, size=(200_000, 8)).max(axis=1) / 50
+    assert study_report.expected_peak(0.864, 50, 8) == pytest.approx(draws.mean(), abs=1e-3)
+    assert study_report.expected_peak(0.864, 50, 8) > 0.864 + 0.05  # what a peak over 8 evaluations adds
