@@ -22,6 +22,9 @@ def test_a_cell_two_parts_need_is_run_once_and_jobs_are_seed_major():
     jobs = study.jobs(study.cells_of(["controller"], methods=["dsrl"]))
     assert [(j["cell"], j["seed"]) for j in jobs[:3]] == [("lift", 0), ("lift-cartesian-nolimits", 0), ("lift", 1)]
     assert sum(j["cell"] == "lift" for j in jobs) == 5 and sum(j["cell"] != "lift" for j in jobs) == 3
+    utd = study.cells_of(["critic"])[1]
+    config = study._trial_config(utd, study.jobs([utd])[0], study.ROOT)
+    assert config["utd"] == 30 and "utd" not in study._trial_config(cells[0], jobs[0], study.ROOT)
     quick = study.cells_of(["dial"], quick=True)
     assert all(c.steps == 64 and c.seeds == (0,) for c in quick)
 

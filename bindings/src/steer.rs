@@ -32,7 +32,7 @@ pub fn steer_preset<'py>(py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyD
 /// `env` holds the environments' options (their keyword arguments: joint_limits, controller,
 /// horizon, variant, physics, ...).
 #[pyfunction]
-#[pyo3(signature = (method, task, seed, steps, out, *, threads=1, preset="cpu", env=None, eval_every=2000, eval_episodes=50, policy=None, ent_init=None, terminate_on_success=false, noise_aliased=false, target_entropy=None, prior_kl=None, reward_scale=None, select=None, progress=false, stop_after_evals=None))]
+#[pyo3(signature = (method, task, seed, steps, out, *, threads=1, preset="cpu", env=None, eval_every=2000, eval_episodes=50, policy=None, ent_init=None, utd=None, terminate_on_success=false, noise_aliased=false, target_entropy=None, prior_kl=None, reward_scale=None, select=None, progress=false, stop_after_evals=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn steer_run<'py>(
     py: Python<'py>,
@@ -48,6 +48,7 @@ pub fn steer_run<'py>(
     eval_episodes: usize,
     policy: Option<PathBuf>,
     ent_init: Option<f64>,
+    utd: Option<usize>,
     terminate_on_success: bool,
     noise_aliased: bool,
     target_entropy: Option<f64>,
@@ -65,6 +66,7 @@ pub fn steer_run<'py>(
     cfg.eval_episodes = eval_episodes;
     cfg.policy = policy;
     cfg.ent_init = ent_init;
+    cfg.utd = utd;
     cfg.terminate_on_success = terminate_on_success;
     cfg.noise_aliased = noise_aliased;
     cfg.target_entropy = target_entropy;

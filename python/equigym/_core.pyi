@@ -292,6 +292,7 @@ def steer_run(
     eval_episodes: int = 50,
     policy: str | PathLike[str] | None = None,
     ent_init: float | None = None,
+    utd: int | None = None,
     terminate_on_success: bool = False,
     noise_aliased: bool = False,
     target_entropy: float | None = None,

@@ -76,7 +76,8 @@ def run(
 
     ``options`` are ``equigym._core.steer_run``'s keyword options, typed in its stub (threads,
     preset, env (the environments' keyword arguments as a dict), eval_every, eval_episodes,
-    ent_init, terminate_on_success, noise_aliased, target_entropy, prior_kl, reward_scale, select, progress);
+    ent_init, utd, terminate_on_success, noise_aliased, target_entropy, prior_kl, reward_scale, select,
+    progress);
     an unknown name is a ``TypeError``. ``policy`` defaults to the task's shipped EDP and
     ``progress`` to True."""
     options.setdefault("progress", True)
@@ -355,8 +356,11 @@ def parse_grid(specs: list[str]) -> list[dict[str, Any]]:
         name, _, values = spec.partition("=")
         if name not in _OPTIONS or not values:
             raise SystemExit(f"--grid takes name=v1,v2,... with a name in {_OPTIONS}, got '{spec}'")
+        number = int if name in _COUNTS else float
         parse = (
-            (lambda v: None if v == "none" else float(v)) if name in _VALUED else (lambda v: {"0": False, "1": True}[v])
+            (lambda v, number=number: None if v == "none" else number(v))
+            if name in _VALUED
+            else (lambda v: {"0": False, "1": True}[v])
         )
         try:
             axes.append((name, [parse(v) for v in values.split(",")]))
@@ -539,8 +543,9 @@ CONTROL_SCALES = (1.0, 0.5, 0.0)
 #: run.json's evaluation settings when it does not name them (the runner's defaults).
 _DEFAULT_EVAL = {"eval_every": 2000, "eval_episodes": 50}
 #: The run options that ``run.json`` records when set: switches, then options with a value.
-_OPTIONS = ("terminate_on_success", "noise_aliased", "target_entropy", "prior_kl", "reward_scale", "select")
-_VALUED = ("target_entropy", "prior_kl", "reward_scale", "select")
+_OPTIONS = ("terminate_on_success", "noise_aliased", "target_entropy", "prior_kl", "reward_scale", "select", "utd")
+_VALUED = ("target_entropy", "prior_kl", "reward_scale", "select", "utd")
+_COUNTS = ("select", "utd")
 
 
 def _read_run(d: Path) -> dict[str, Any]:
@@ -812,6 +817,12 @@ def main(argv: list[str] | None = None) -> None:
             default=None,
             help="steer by selection: the best of N fresh N(0, I) noises by the critics, no actor; the critics "
             "learn that policy's value (1: the base policy's; Rust agents)",
+        )
+        s.add_argument(
+            "--utd",
+            type=int,
+            default=None,
+            help="gradient steps per environment transition for every task (default: the preset's; Rust agents)",
         )
         s.add_argument(
             "--ent-init", type=float, default=None, help="initial entropy coefficient (default: the preset's)"

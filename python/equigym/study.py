@@ -10,8 +10,9 @@ over seeds at one budget (:data:`CELLS`). *Parts* name the cells each question n
 (:data:`PARTS`): ``table1`` (Lift, Stack D1, Square D2, the paper's table), ``sb3`` (the SB3 +
 escnn cross-check on Lift), ``controller`` (a scene that commutes with rotations, the Cartesian
 controller without joint limits, against the joint controller with them), ``limits`` (Stack D1
-with and without joint limits, each with an EDP trained on demos of its own setting) and
-``dial`` (the joint-limit ranges scaled about their midpoints, ``physics.joint_limit_scale``:
+with and without joint limits, each with an EDP trained on demos of its own setting),
+``critic`` (Lift at the paper's update-to-data ratio, 30, against the cpu preset's 4: the
+paper ties DSRL's Q divergence to it) and ``dial`` (the joint-limit ranges scaled about their midpoints, ``physics.joint_limit_scale``:
 the symmetry breaking measured at each setting beside each method's steering gain). A cell
 shared by two parts (Table 1's Lift is the dial's scale 1 and the controller ablation's joint
 arm) is run once.
@@ -73,6 +74,10 @@ TASK_LABELS = {"lift": "Lift", "stack": "Stack D1", "square": "Square D2"}
 #: cell's task and agent to measure it from (measured: the Lift recipe runs of
 #: docs/steering/arm3 and the Stack ones of arm4, one run per core, evaluations included).
 DEFAULT_COST = {("lift", "rust"): 0.020, ("stack", "rust"): 0.045, ("square", "rust"): 0.050, ("lift", "sb3"): 0.08}
+#: For a cell with its own UTD and no finished run to measure: the share of a run's time spent
+#: training at the cpu preset's UTD (the Lift runs' cost table in the report), scaled by the
+#: ratio of the UTDs.
+TRAIN_SHARE, PRESET_UTD = 0.8, 4
 #: Seeds of the paper's table, and of the cheaper ablations.
 SEEDS = (0, 1, 2, 3, 4)
 ABLATION_SEEDS = (0, 1, 2)
@@ -97,6 +102,8 @@ class Cell:
     recipe: str = RECIPE
     #: The dial's setting (joint-limit scale; ``inf`` for no limits), for dial cells.
     dial: float | None = None
+    #: Gradient steps per transition where the cell sets its own (default: the preset's).
+    utd: int | None = None
 
     def policy_path(self) -> str:
         return self.policy or f"assets/edp/{self.task}.safetensors"
@@ -158,6 +165,9 @@ CELLS: dict[str, Cell] = {
             env={"joint_limits": False},
             policy="docs/steering/study/edp/stack-nolimits.safetensors",
         ),
+        # The paper ties DSRL's Q divergence to its update-to-data ratio (30); the cpu preset's 4
+        # does not provoke it (claim 2).
+        Cell("lift-utd30", "lift", "Lift, UTD 30 (the paper's)", 16_000, 2_000, seeds=ABLATION_SEEDS, utd=30),
         _scaled(0.6),
         _scaled(0.8),
         _scaled(1.25),
@@ -178,6 +188,7 @@ PARTS: dict[str, tuple[str, ...]] = {
     "sb3": ("lift-dsrl", "lift-sb3"),
     "controller": ("lift", "lift-cartesian-nolimits"),
     "limits": ("stack", "stack-nolimits"),
+    "critic": ("lift", "lift-utd30"),
     "dial": ("lift-scale0.6", "lift-scale0.8", "lift", "lift-scale1.25", "lift-nolimits"),
 }
 #: How the limits ablation's EDP is made: the shipped Stack recipe (docs/edp.md, "Stack D1") on
@@ -223,18 +234,28 @@ def _run_dirs(cell: Cell, root: Path) -> list[Path]:
     return sorted(p.parent for p in cell.out(root).rglob("seed*/log.csv"))
 
 
-def _cost_per_step(root: Path) -> dict[tuple[str, str], float]:
-    """Core-seconds per env step by (task, agent): the study's own finished runs where it has
-    them (their clocks, one run per CPU), else :data:`DEFAULT_COST`."""
-    seen: dict[tuple[str, str], list[float]] = {}
+def _cost_per_step(root: Path) -> dict[tuple[str, str, int | None], float]:
+    """Core-seconds per env step by (task, agent, the cell's own UTD): the study's own finished
+    runs where it has them (their clocks, one run per CPU), else :data:`DEFAULT_COST`."""
+    seen: dict[tuple[str, str, int | None], list[float]] = {}
     for cell in CELLS.values():
         for d in _run_dirs(cell, root):
             s = d / "summary.json"
             if s.exists():
                 summary = json.loads(s.read_text())
                 if summary.get("env_steps"):
-                    seen.setdefault((cell.task, cell.agent), []).append(summary["seconds"] / summary["env_steps"])
-    return {**DEFAULT_COST, **{k: sum(v) / len(v) for k, v in seen.items()}}
+                    key = (cell.task, cell.agent, cell.utd)
+                    seen.setdefault(key, []).append(summary["seconds"] / summary["env_steps"])
+    return {**{(*k, None): v for k, v in DEFAULT_COST.items()}, **{k: sum(v) / len(v) for k, v in seen.items()}}
+
+
+def _cell_cost(cost: dict[tuple[str, str, int | None], float], cell: Cell) -> float:
+    """Core-seconds per env step of one of the cell's runs (:func:`_cost_per_step`); a UTD of
+    its own with nothing measured yet scales the preset's training share."""
+    key = (cell.task, cell.agent, cell.utd)
+    if key in cost or cell.utd is None:
+        return cost[key]
+    return cost[(cell.task, cell.agent, None)] * (1 + TRAIN_SHARE * (cell.utd / PRESET_UTD - 1))
 
 
 def plan(cells: list[Cell], root: Path, cpus: int) -> str:
@@ -248,9 +269,11 @@ def plan(cells: list[Cell], root: Path, cpus: int) -> str:
     for cell in cells:
         n = len(cell.methods) * len(cell.seeds)
         done = sum(1 for d in _run_dirs(cell, root) if (d / "summary.json").exists() and _steps(d) >= cell.steps)
-        left = (n - done) * cell.steps * cost[(cell.task, cell.agent)] / 3600
+        left = (n - done) * cell.steps * _cell_cost(cost, cell) / 3600
         total_left += left
-        setting = json.dumps(cell.env) if cell.env else "-"
+        setting = (
+            " ".join([json.dumps(cell.env)] * bool(cell.env) + [f"UTD {cell.utd}"] * (cell.utd is not None)) or "-"
+        )
         lines.append(
             f"| {cell.name} | {cell.task} | {setting} | {len(cell.methods)} x {len(cell.seeds)} | "
             f"{cell.steps:,} | {done}/{n} | {left:.1f} |"
@@ -280,6 +303,7 @@ def _trial_config(cell: Cell, job: dict[str, Any], root: Path) -> dict[str, Any]
         "policy": cell.policy_path(),
         "ent_init": None,
         **RECIPES[cell.recipe],
+        **({"utd": cell.utd} if cell.utd is not None else {}),
     }
 
 

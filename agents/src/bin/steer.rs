@@ -28,7 +28,7 @@ use equigym_wrappers::steerability::{ProbeConfig, Rate};
 const USAGE: &str =
     "usage: steer run --method {dsrl,equi,approx} --task {lift,stack,square} --seed S --steps N --out DIR \
 [--threads T] [--preset cpu|paper] [--env JSON] [--no-joint-limits] [--controller joint|cartesian] [--eval-every N] \
-[--eval-episodes N] [--policy FILE] [--ent-init X] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X | --prior-kl NATS] [--reward-scale X] [--select N] [--quiet]
+[--eval-episodes N] [--policy FILE] [--ent-init X] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X | --prior-kl NATS] [--reward-scale X] [--select N] [--utd N] [--quiet]
        steer probe <the run's options> --report DIR [--starts N] [--at K,K,..] [--candidates M] [--continuations K] [--actor-samples A]
        steer eval <the run's options> [--actor mean|sampled|best-of-N] [--episodes N]";
 
@@ -142,6 +142,7 @@ fn parse(args: &[String]) -> Result<RunConfig, String> {
                     Some(v.parse::<f64>().map_err(|_| format!("--reward-scale takes a number, got '{v}'"))?)
             }
             "--select" => cfg.select = Some(num()?),
+            "--utd" => cfg.utd = Some(num()?),
             "--quiet" => cfg.progress = false,
             "--terminate-on-success" => cfg.terminate_on_success = true,
             "--noise-aliased" => cfg.noise_aliased = true,

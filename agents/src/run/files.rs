@@ -107,6 +107,7 @@ impl Runner {
             prior_kl: cfg.prior_kl,
             reward_scale: cfg.reward_scale,
             select: cfg.select,
+            utd: cfg.utd,
             variant: cfg.env.variant.as_deref(),
             eval_every: (cfg.eval_every != EVAL_EVERY).then_some(cfg.eval_every),
             eval_episodes: (cfg.eval_episodes != EVAL_EPISODES).then_some(cfg.eval_episodes),
@@ -160,6 +161,9 @@ struct RunMeta<'a> {
     reward_scale: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     select: Option<usize>,
+    /// Gradient steps per transition where a run sets its own (else the preset's).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    utd: Option<usize>,
     #[serde(skip_serializing_if = "Option::is_none")]
     variant: Option<&'a str>,
     /// Evaluation settings and the controller, when not the defaults.
@@ -229,6 +233,7 @@ mod tests {
             prior_kl: None,
             reward_scale: None,
             select: None,
+            utd: None,
             variant: None,
             eval_every: None,
             eval_episodes: None,
