@@ -29,10 +29,14 @@ def test_the_record_adds_up_invocations_and_run_clocks(tmp_path):
         d = tmp_path / agent / "lift" / "equi" / "seed0"
         d.mkdir(parents=True)
         (d / "log.csv").write_text(f"env_steps,success_rate,mean_q,seconds\n16,0.5,-1.0,1.0\n32,0.5,-1.0,{seconds}\n")
-    invocations = [{"started": "t0", "wall_seconds": 100.0}, {"started": "t1"}]  # the second one killed
-    steer._write_sweep_record(tmp_path / "sweep.json", invocations, tmp_path)
-    record = json.loads((tmp_path / "sweep.json").read_text())
-    assert record["wall_seconds"] == 100.0 and len(record["invocations"]) == 2
+    path, clocks = tmp_path / "sweep.json", steer._run_clocks(tmp_path)
+    steer.record_invocation(path, {"started": "t-1", "wall_seconds": 7.0}, start=True)
+    steer.record_invocation(path, {"started": "t0"}, start=True, fresh=True, totals=clocks)  # a new sweep
+    steer.record_invocation(path, {"wall_seconds": 100.0}, start=False, totals=clocks)
+    steer.record_invocation(path, {"started": "t1"}, start=True, totals=clocks)  # resumed, then killed
+    record = json.loads(path.read_text())
+    assert [i["started"] for i in record["invocations"]] == ["t0", "t1"]
+    assert record["wall_seconds"] == 100.0
     assert record["runs"] == 2 and record["run_seconds"] == 42.5
 
 

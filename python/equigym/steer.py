@@ -177,22 +177,33 @@ def sweep_jobs(methods: list[str], seeds: list[int], sb3: list[str], sb3_seeds: 
     return jobs
 
 
-def _write_sweep_record(path: Path, invocations: list[dict[str, Any]], out: Path) -> None:
-    """``sweep.json``: every invocation, the wall time of those that finished, and the sum of the
-    runs' own clocks (the last ``seconds`` of each ``log.csv`` under ``out``)."""
+def record_invocation(
+    path: Path, entry: dict[str, Any], *, start: bool, fresh: bool = False, totals: dict[str, Any] | None = None
+) -> None:
+    """The record of a sweep's or a study's invocations (``sweep.json``, ``study.json``): one
+    entry per invocation, written when it starts (``start``; ``fresh`` drops the earlier ones)
+    and completed when it ends, so that a resumed experiment's wall time adds up (a killed
+    invocation keeps its start only); ``wall_seconds`` sums the finished ones, ``totals`` adds
+    the caller's own figures."""
+    record = json.loads(path.read_text()) if path.exists() and not fresh else {}
+    invocations = record.get("invocations", [])
+    if start or not invocations:
+        invocations.append(entry)
+    else:
+        invocations[-1].update(entry)
+    wall = round(sum(i.get("wall_seconds", 0.0) for i in invocations), 1)
+    path.write_text(json.dumps({"invocations": invocations, "wall_seconds": wall, **(totals or {})}, indent=1) + "\n")
+
+
+def _run_clocks(out: Path) -> dict[str, Any]:
+    """The runs under ``out`` and the sum of their own clocks (each ``log.csv``'s last ``seconds``)."""
     clocks = []
     for log in sorted(out.glob("*/*/*/seed*/log.csv")):
         with open(log) as f:
             rows = list(csv.DictReader(f))
         if rows:
             clocks.append(float(rows[-1]["seconds"]))
-    record = {
-        "invocations": invocations,
-        "wall_seconds": round(sum(i.get("wall_seconds", 0.0) for i in invocations), 1),
-        "runs": len(clocks),
-        "run_seconds": round(sum(clocks), 1),
-    }
-    path.write_text(json.dumps(record, indent=1))
+    return {"runs": len(clocks), "run_seconds": round(sum(clocks), 1)}
 
 
 def sweep(a: argparse.Namespace) -> None:
@@ -310,19 +321,15 @@ def tune_experiment(
 
 def _fit(a: argparse.Namespace, trainable: Any, space: dict[str, Any], name: str, scheduler: Any = None) -> Any:
     """Run (or, with ``--resume``, restore) the Tune experiment ``name`` under ``<out>/tune``
-    (:func:`tune_experiment`), and keep ``<out>/sweep.json``'s record of invocations; returns the
-    results."""
+    (:func:`tune_experiment`), and keep ``<out>/sweep.json``'s record of invocations
+    (:func:`record_invocation`); returns the results."""
     out = Path(a.out).resolve()
     started = time.time()
-    # One record per invocation, written when it starts and completed when it ends, so that a
-    # resumed sweep's wall time adds up (a killed invocation keeps its start time only).
     record_path = out / "sweep.json"
-    record = json.loads(record_path.read_text()) if a.resume and record_path.exists() else {}
-    invocations = record.get("invocations", [])
 
     def started_record(restored: bool) -> None:
-        invocations.append({"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "args": vars(a), "restored": restored})
-        _write_sweep_record(record_path, invocations, out)
+        entry = {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "args": vars(a), "restored": restored}
+        record_invocation(record_path, entry, start=True, fresh=not a.resume, totals=_run_clocks(out))
 
     results, _ = tune_experiment(
         trainable,
@@ -338,8 +345,8 @@ def _fit(a: argparse.Namespace, trainable: Any, space: dict[str, Any], name: str
     )
     wall = time.time() - started
     failed = [r for r in results if r.error is not None]
-    invocations[-1].update({"wall_seconds": round(wall, 1), "trials": len(results), "failed": len(failed)})
-    _write_sweep_record(record_path, invocations, out)
+    entry = {"wall_seconds": round(wall, 1), "trials": len(results), "failed": len(failed)}
+    record_invocation(record_path, entry, start=False, totals=_run_clocks(out))
     print(f"{len(results)} trials, {len(failed)} failed, {wall:.0f} s wall")
     if failed:
         raise SystemExit(f"{len(failed)} trials failed; rerun with --resume")

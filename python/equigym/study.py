@@ -54,7 +54,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from equigym.steer import CONTROL_SCALES, METHODS, RECIPES, _read_run, _trainable, tune_experiment
+from equigym.steer import CONTROL_SCALES, METHODS, RECIPES, _read_run, _trainable, record_invocation, tune_experiment
 
 #: The repository root: relative paths of cells (EDP files) are relative to it.
 ROOT = Path(__file__).resolve().parents[2]
@@ -338,17 +338,6 @@ def run_controls(cells: list[Cell], root: Path, threads: int) -> None:
         controls(_read_run(dirs[0])["meta"], seeds, CONTROL_SCALES, cell.out(root) / "controls.json", threads)
 
 
-def _record(root: Path, entry: dict[str, Any], update: bool) -> None:
-    path = root / "study.json"
-    record = json.loads(path.read_text()) if path.exists() else {"invocations": []}
-    if update:
-        record["invocations"][-1].update(entry)
-    else:
-        record["invocations"].append(entry)
-    record["wall_seconds"] = round(sum(i.get("wall_seconds", 0.0) for i in record["invocations"]), 1)
-    path.write_text(json.dumps(record, indent=1) + "\n")
-
-
 def run(a: argparse.Namespace) -> None:
     try:
         from ray import tune
@@ -366,7 +355,10 @@ def run(a: argparse.Namespace) -> None:
         )
     root.mkdir(parents=True, exist_ok=True)
     started = time.time()
-    _record(root, {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "parts": a.parts, "cpus": a.cpus}, False)
+    record = root / "study.json"
+    record_invocation(
+        record, {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "parts": a.parts, "cpus": a.cpus}, start=True
+    )
     measure_dial(cells, root, 2 if a.quick else a.breaking_episodes)
     by_name = {c.name: c for c in cells}
     space = {"job": tune.grid_search(jobs(cells))}
@@ -404,7 +396,7 @@ def run(a: argparse.Namespace) -> None:
     run_controls(cells, root, a.cpus or 1)
     wall = time.time() - started
     entry = {"wall_seconds": round(wall, 1), "trials": len(results), "paused": len(paused), "failed": len(failed)}
-    _record(root, entry, True)
+    record_invocation(record, entry, start=False)
     print(f"{len(results)} trials, {len(paused)} paused at the deadline, {len(failed)} failed, {wall:.0f} s wall")
     if failed:
         raise SystemExit(f"{len(failed)} trials failed; run the same command again to resume")
