@@ -69,6 +69,8 @@ def parse_args():
     ap.add_argument("--latent-batch-sizes", default="1,16,64")
     ap.add_argument("--latent-steps", type=int, default=1500, help="latent steps per repetition (all sub-envs)")
     ap.add_argument("--no-latent", action="store_true", help="skip the latent-action env and EDP part")
+    ap.add_argument("--vector-reps", type=int, default=5,
+                    help="repetitions of each (B, T), the thread counts alternating (the scaling is their median ratio)")
     ap.add_argument("--vector-env-steps", type=int, default=4000,
                     help="environment steps per repetition of each (B, T) (at least 20 batch steps)")
     ap.add_argument("--robosuite-python", type=Path, default=PEERS_DIR / "venv_robosuite" / "bin" / "python")
@@ -85,6 +87,7 @@ def parse_args():
     if args.quick:
         args.steps, args.reps, args.resets, args.warmup = 300, 1, 3, 50
         args.vector_env_steps = 640
+        args.vector_reps = 2
         args.batch_sizes = "1,8,64"
         args.latent_steps = 200
     args.latent_batch_sizes = [int(b) for b in str(args.latent_batch_sizes).split(",")]
@@ -104,48 +107,63 @@ def bench_pandagym(args):
     return peers.run_worker(args.pandagym_python, PANDAGYM_WORKER, [], args)
 
 
-def bench_vector(env_id, b, t, args):
+def bench_vector(env_id, b, threads, args):
+    """The vector env at batch size ``b`` for every thread count in ``threads``, the counts'
+    repetitions alternating (T=1, T=2, T=1, ...) so that drift in the machine's speed falls on
+    all of them alike; each T's pool is started pinned to the first T CPUs, and the main thread
+    is pinned the same way for its repetitions. Returns one result per T; each T > 1 also gets
+    ``scaling_runs`` (its rate over T=1's in the same repetition) and ``scaling`` (their median)."""
     import gymnasium
 
     cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
-    res = {"B": b, "threads": t, "load_before": peers.loadavg(), "affinity": cpus}
-    t0 = time.perf_counter()
-    envs = gymnasium.make_vec(env_id, num_envs=b, threads=t)  # the pool starts here, on the pinned CPUs
-    res["make_s"] = time.perf_counter() - t0
-    core = envs.unwrapped.core
     n = max(20, args.vector_env_steps // b)
-    space = envs.action_space
-    space.seed(args.seed)
-    rs = []
-    for i in range(max(3, args.resets // 2)):
-        r0 = time.perf_counter()
-        envs.reset(seed=args.seed + i)
-        rs.append(time.perf_counter() - r0)
-    res["reset_ms"] = 1e3 * statistics.median(rs)
-    for a in [space.sample() for _ in range(max(5, n // 10))]:
-        envs.step(a)
-    rates, py_share, step_us, rust_us, cpu_us = [], [], [], [], []
-    for _ in range(args.reps):
-        actions = [space.sample() for _ in range(n)]
-        core.stepping_seconds = 0.0
-        c0 = time.process_time()  # CPU time of every thread of the process, load-independent
+    envs, res = {}, {}
+    for t in threads:
+        pin_first(cpus, t)
+        r = res[t] = {"B": b, "threads": t, "load_before": peers.loadavg(), "affinity": cpus[:t]}
         t0 = time.perf_counter()
-        for a in actions:
-            envs.step(a)
-        wall = time.perf_counter() - t0
-        cpu_us.append(1e6 * (time.process_time() - c0) / (n * b))
-        rust = core.stepping_seconds
-        rates.append(n * b / wall)
-        step_us.append(1e6 * wall / n)
-        rust_us.append(1e6 * rust / n)
-        py_share.append((wall - rust) / wall)
-    k = rates.index(statistics.median(rates))  # report the median run's numbers together
-    res.update(batch_steps=n, env_steps_per_s=rates[k], env_steps_per_s_runs=rates, step_us=step_us[k],
-               cpu_us_per_env_step=cpu_us[k],
-               rust_step_us=rust_us[k], python_us=step_us[k] - rust_us[k], python_share=py_share[k])
-    envs.close()
-    del envs, core
-    return res
+        envs[t] = gymnasium.make_vec(env_id, num_envs=b, threads=t)  # the pool starts here, on the pinned CPUs
+        r["make_s"] = time.perf_counter() - t0
+        envs[t].action_space.seed(args.seed)
+        rs = []
+        for i in range(max(3, args.resets // 2)):
+            r0 = time.perf_counter()
+            envs[t].reset(seed=args.seed + i)
+            rs.append(time.perf_counter() - r0)
+        r["reset_ms"] = 1e3 * statistics.median(rs)
+        for a in [envs[t].action_space.sample() for _ in range(max(5, n // 10))]:
+            envs[t].step(a)
+    runs = {t: {"rate": [], "step_us": [], "rust_us": [], "py_share": [], "cpu_us": []} for t in threads}
+    for _ in range(args.vector_reps):
+        for t in threads:
+            pin_first(cpus, t)
+            core = envs[t].unwrapped.core
+            actions = [envs[t].action_space.sample() for _ in range(n)]
+            core.stepping_seconds = 0.0
+            c0 = time.process_time()  # CPU time of every thread of the process, load-independent
+            t0 = time.perf_counter()
+            for a in actions:
+                envs[t].step(a)
+            wall = time.perf_counter() - t0
+            rust = core.stepping_seconds
+            k = runs[t]
+            k["cpu_us"].append(1e6 * (time.process_time() - c0) / (n * b))
+            k["rate"].append(n * b / wall)
+            k["step_us"].append(1e6 * wall / n)
+            k["rust_us"].append(1e6 * rust / n)
+            k["py_share"].append((wall - rust) / wall)
+    for t in threads:
+        k, r = runs[t], res[t]
+        i = k["rate"].index(statistics.median_low(k["rate"]))  # report the median run's numbers together
+        r.update(batch_steps=n, env_steps_per_s=k["rate"][i], env_steps_per_s_runs=k["rate"], step_us=k["step_us"][i],
+                 cpu_us_per_env_step=k["cpu_us"][i], rust_step_us=k["rust_us"][i],
+                 python_us=k["step_us"][i] - k["rust_us"][i], python_share=k["py_share"][i])
+        if t != threads[0]:
+            pairs = [x / y for x, y in zip(k["rate"], runs[threads[0]]["rate"])]
+            r.update(scaling_runs=pairs, scaling=statistics.median(pairs))
+        envs[t].close()
+    pin_first(cpus, len(cpus))
+    return [res[t] for t in threads]
 
 
 # ---------------------------------------------------------------- latent-action env and EDP
@@ -205,6 +223,20 @@ def cpus_used(v):
 
 def ratio(a, b, spec=".1f"):
     return f"{a / b:{spec}}×" if a and b else "–"
+
+
+def scaling(by, b):
+    """T=2 over T=1 at batch size b: the median of the alternating repetitions' ratios (runs of
+    the suite before they alternated: the ratio of the two medians)."""
+    v1, v2 = by.get((b, 1)), by.get((b, 2))
+    if get(v2, "scaling") is not None:
+        return get(v2, "scaling")
+    r1, r2 = get(v1, "env_steps_per_s"), get(v2, "env_steps_per_s")
+    return r2 / r1 if r1 and r2 else None
+
+
+def times(x, spec=".2f"):
+    return f"{x:{spec}}×" if x else "–"
 
 
 def latent_section(m, latent, edp):
@@ -267,7 +299,8 @@ def report(meta, single, pandagym, vector, plot_name, latent=None, edp=None):
             L.append(f"\npanda-gym error: {pandagym['error']}")
     L += ["", f"## Vector env ({m['args']['vector_task']}, `gymnasium.make_vec`, auto-reset on)", "",
           "Env steps/s of the whole batch; *Python share* = (wall time of `EquiVectorEnv.step` − time inside the "
-          "Rust batched step) / wall time. T threads run pinned to the first T CPUs. *CPUs used* = process CPU "
+          "Rust batched step) / wall time. T threads run pinned to the first T CPUs; the thread counts' repetitions "
+          "alternate, and *T=2 / T=1* is the median of the repetitions' ratios. *CPUs used* = process CPU "
           "time (all threads) / wall time during the timed steps: 2.0 would mean both cores were ours; on a machine "
           "busy with other work it shows how much CPU the run actually got, which bounds the thread scaling.", "",
           "| B | " + " | ".join(f"T={t} env steps/s | T={t} µs/step | T={t} Python share | T={t} CPUs used"
@@ -282,8 +315,7 @@ def report(meta, single, pandagym, vector, plot_name, latent=None, edp=None):
             cells += [fmt(get(v, "env_steps_per_s")), fmt(get(v, "step_us"), ",.0f"),
                       fmt(100 * get(v, "python_share") if get(v, "python_share") is not None else None, ".1f") + " %",
                       fmt(cpus_used(v), ".2f")]
-        r1, r2 = get(by.get((b, 1)), "env_steps_per_s"), get(by.get((b, 2)), "env_steps_per_s")
-        L.append(f"| {b} | " + " | ".join(cells) + f" | {ratio(r2, r1, '.2f')} "
+        L.append(f"| {b} | " + " | ".join(cells) + f" | {times(scaling(by, b))} "
                  f"| {fmt(get(by.get((b, 1)), 'reset_ms'), '.2f')} |")
     L += latent_section(m, latent, edp)
 
@@ -296,8 +328,8 @@ def report(meta, single, pandagym, vector, plot_name, latent=None, edp=None):
                                  ("Lift single env ≥ 20× robosuite Lift", e, s, TARGET_VS_ROBOSUITE)):
             met = "–" if not (a and bb) else ("yes" if a / bb >= tgt else "**no**")
             L.append(f"| {name} | {ratio(a, bb)} | {met} |")
-    scal = [(b, get(by.get((b, 2)), "env_steps_per_s"), get(by.get((b, 1)), "env_steps_per_s")) for b in m["args"]["batch_sizes"]]
-    scal = [(b, r2 / r1) for b, r2, r1 in scal if r2 and r1]
+    scal = [(b, scaling(by, b)) for b in m["args"]["batch_sizes"]]
+    scal = [(b, x) for b, x in scal if x]
     big = [s for b, s in scal if b >= SCALING_MIN_BATCH]
     if big:
         L.append(f"| vector env ≥ {TARGET_THREAD_SCALING}× on 2 threads over 1 (B ≥ {SCALING_MIN_BATCH}) | {min(big):.2f}× – {max(big):.2f}× | "
@@ -405,7 +437,7 @@ def readme_block(meta, single, pandagym, vector, plot_rel, latent=None, edp=None
         v1, v2 = by.get((b, 1)), by.get((b, 2))
         r1, r2 = get(v1, "env_steps_per_s"), get(v2, "env_steps_per_s")
         sh = [x for x in (get(v1, "python_share"), get(v2, "python_share")) if x is not None]
-        rows.append(f"| {b} | {fmt(r1)} | {fmt(r2)} | {ratio(r2, r1, '.2f')} | {fmt(cpus_used(v1), '.2f')} / "
+        rows.append(f"| {b} | {fmt(r1)} | {fmt(r2)} | {times(scaling(by, b))} | {fmt(cpus_used(v1), '.2f')} / "
                     f"{fmt(cpus_used(v2), '.2f')} | {fmt(100 * max(sh) if sh else None, '.1f')} % |")
     L += ["", f"| vector env ({meta['args']['vector_task']}), B | env steps/s, 1 thread | 2 threads | 2 / 1 "
               "| CPUs the run got, 1 / 2 threads | Python share of a step |", "|---:|---:|---:|---:|---:|---:|"] + rows
@@ -502,11 +534,12 @@ def main():
     # 2. vector env, T threads pinned to the first T CPUs
     meta["load_parts"]["vector"] = peers.loadavg()
     vector = []
-    for t in args.threads:
-        pin_first(cpus, t)
-        for b in args.batch_sizes:
-            log(f"[vector] B={b} T={t} ...")
-            v = peers.guarded(bench_vector, args.vector_task, b, t, args)
+    for b in args.batch_sizes:
+        log(f"[vector] B={b}, T={args.threads} alternating ...")
+        got = peers.guarded(bench_vector, args.vector_task, b, args.threads, args)
+        if isinstance(got, dict):  # an error: one entry per thread count
+            got = [dict(got) for _ in args.threads]
+        for t, v in zip(args.threads, got):
             v.setdefault("B", b)
             v.setdefault("threads", t)
             vector.append(v)
