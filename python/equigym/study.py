@@ -258,18 +258,31 @@ def _cell_cost(cost: dict[tuple[str, str, int | None], float], cell: Cell) -> fl
     return cost[(cell.task, cell.agent, None)] * (1 + TRAIN_SHARE * (cell.utd / PRESET_UTD - 1))
 
 
+def budget(cells: list[Cell], root: Path) -> list[dict[str, Any]]:
+    """Per cell: its runs, those finished, and core-hours per run (measured where the study has
+    finished runs of its kind, else estimated: :func:`_cost_per_step`)."""
+    cost = _cost_per_step(root)
+    return [
+        {
+            "cell": cell,
+            "runs": len(cell.methods) * len(cell.seeds),
+            "done": sum(1 for d in _run_dirs(cell, root) if (d / "summary.json").exists() and _steps(d) >= cell.steps),
+            "core_h_per_run": cell.steps * _cell_cost(cost, cell) / 3600,
+        }
+        for cell in cells
+    ]
+
+
 def plan(cells: list[Cell], root: Path, cpus: int) -> str:
     """The runs the cells need, what is done, and the core-hours left."""
-    cost = _cost_per_step(root)
     lines = [
         "| cell | task | setting | methods x seeds | env steps | done | core-h left |",
         "|---|---|---|---:|---:|---:|---:|",
     ]
     total_left = 0.0
-    for cell in cells:
-        n = len(cell.methods) * len(cell.seeds)
-        done = sum(1 for d in _run_dirs(cell, root) if (d / "summary.json").exists() and _steps(d) >= cell.steps)
-        left = (n - done) * cell.steps * _cell_cost(cost, cell) / 3600
+    for b in budget(cells, root):
+        cell, n, done = b["cell"], b["runs"], b["done"]
+        left = (n - done) * b["core_h_per_run"]
         total_left += left
         setting = (
             " ".join([json.dumps(cell.env)] * bool(cell.env) + [f"UTD {cell.utd}"] * (cell.utd is not None)) or "-"
