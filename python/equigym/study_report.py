@@ -146,6 +146,16 @@ def peak_excess(data: dict[str, Any], method: str) -> list[float]:
     ]
 
 
+def trend(run: dict[str, Any]) -> float:
+    """Whether a run's success had levelled off at its budget: the mean of its last
+    ``FINAL_EVALUATIONS`` evaluations minus the mean of as many before them (nan if too few)."""
+    rates = [float(r["success_rate"]) for r in run["log"]]
+    k = FINAL_EVALUATIONS
+    if len(rates) < 2 * k + 1:  # the first evaluation is the untrained actor's
+        return math.nan
+    return sum(rates[-k:]) / k - sum(rates[-2 * k : -k]) / k
+
+
 def table1(cells: dict[str, dict[str, Any]]) -> list[str]:
     lines = []
     for figure, title in (
@@ -180,10 +190,12 @@ def table1(cells: dict[str, dict[str, Any]]) -> list[str]:
             lines.append("| " + " | ".join(row) + " |")
         lines.append("")
     lines += [
-        "**Untrained actor, pooled final evaluations and gain over the base** (final - base, paired by seed)",
+        "**Untrained actor, pooled final evaluations, gain over the base** (final - base, paired by seed) **and "
+        "whether the curves had levelled off at the budget**",
         "",
-        "| task | method | untrained actor | final, pooled (Wilson 95 %) | gain over the base | env steps |",
-        "|---|---|---:|---:|---:|---:|",
+        "| task | method | untrained actor | final, pooled (Wilson 95 %) | gain over the base | still moving? "
+        "(last 3 - the 3 before) | env steps |",
+        "|---|---|---:|---:|---:|---:|---:|",
     ]
     for name in (*PARTS["table1"], *PARTS["critic"][1:]):
         d = cells[name]
@@ -192,7 +204,8 @@ def table1(cells: dict[str, dict[str, Any]]) -> list[str]:
             steps = ", ".join(sorted({f"{r['steps']:,}" for r in rs})) or "-"
             lines.append(
                 f"| {TASK_LABELS[d['cell'].task]} | {label} | {_fmt([r['figures']['untrained'] for r in rs])} | "
-                f"{_pooled(rs)} | {_fmt(gains(d, m))} | {steps} |"
+                f"{_pooled(rs)} | {_fmt(gains(d, m))} | {_fmt([x for x in map(trend, rs) if not math.isnan(x)])} | "
+                f"{steps} |"
             )
     return lines + [""]
 
