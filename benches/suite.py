@@ -107,6 +107,10 @@ def bench_pandagym(args):
     return peers.run_worker(args.pandagym_python, PANDAGYM_WORKER, [], args)
 
 
+#: The CPUs this process may use, read before any part of the suite pins it to fewer.
+ALL_CPUS = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+
+
 def bench_vector(env_id, b, threads, args):
     """The vector env at batch size ``b`` for every thread count in ``threads``, the counts'
     repetitions alternating (T=1, T=2, T=1, ...) so that drift in the machine's speed falls on
@@ -115,7 +119,7 @@ def bench_vector(env_id, b, threads, args):
     ``scaling_runs`` (its rate over T=1's in the same repetition) and ``scaling`` (their median)."""
     import gymnasium
 
-    cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    cpus = ALL_CPUS
     n = max(20, args.vector_env_steps // b)
     envs, res = {}, {}
     for t in threads:
