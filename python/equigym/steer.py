@@ -486,6 +486,14 @@ FINAL_EVALUATIONS = 3
 FIGURES = (("untrained", ".2f"), ("peak", ".2f"), ("final", ".3f"))
 
 
+def trained_rows(log: list[dict[str, str]], train: dict[str, dict[str, str]]) -> list[dict[str, str]]:
+    """The evaluations (``log.csv`` rows) made once training had started: the entropy
+    coefficient in ``train.csv`` has left its initial value. Before that the actor and the
+    critics are their initialisation (and a peak is the warm-up's)."""
+    alpha0 = train.get(log[0]["env_steps"], {}).get("alpha") if log else None
+    return [r for r in log if alpha0 is not None and train.get(r["env_steps"], {}).get("alpha") not in (None, alpha0)]
+
+
 def summarize(log: list[dict[str, str]], train: dict[str, dict[str, str]]) -> dict[str, float]:
     """A run's headline figures from its evaluations: ``untrained`` (the first evaluation, before
     any gradient step: the untrained actor), ``peak`` (the best evaluation once training has
@@ -493,12 +501,7 @@ def summarize(log: list[dict[str, str]], train: dict[str, dict[str, str]]) -> di
     peak before that is the warm-up's, not a learned one) and ``final`` (the mean of the last
     ``FINAL_EVALUATIONS`` evaluations)."""
     rates = [float(r["success_rate"]) for r in log]
-    alpha0 = train.get(log[0]["env_steps"], {}).get("alpha") if log else None
-    trained = [
-        float(r["success_rate"])
-        for r in log
-        if alpha0 is not None and train.get(r["env_steps"], {}).get("alpha") not in (None, alpha0)
-    ]
+    trained = [float(r["success_rate"]) for r in trained_rows(log, train)]
     last = rates[-FINAL_EVALUATIONS:]
     return {
         "untrained": rates[0] if rates else float("nan"),

@@ -12,8 +12,9 @@ escnn cross-check on Lift), ``controller`` (a scene that commutes with rotations
 controller without joint limits, against the joint controller with them), ``limits`` (Stack D1
 with and without joint limits, each with an EDP trained on demos of its own setting),
 ``critic`` (Lift at the paper's update-to-data ratio, 30, against the cpu preset's 4: the
-paper ties DSRL's Q divergence to it) and ``dial`` (the joint-limit ranges scaled about their midpoints, ``physics.joint_limit_scale``:
-the symmetry breaking measured at each setting beside each method's steering gain). A cell
+paper ties DSRL's Q divergence to it) and ``dial`` (the joint-limit ranges scaled about their
+midpoints, ``physics.joint_limit_scale``: the symmetry breaking measured at each setting beside
+each method's steering gain). A cell
 shared by two parts (Table 1's Lift is the dial's scale 1 and the controller ablation's joint
 arm) is run once.
 

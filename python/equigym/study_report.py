@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from equigym import _core
-from equigym.steer import CONTROL_SCALES, FINAL_EVALUATIONS, _read_run, controls, mean_se, summarize
+from equigym.steer import CONTROL_SCALES, FINAL_EVALUATIONS, _read_run, controls, mean_se, summarize, trained_rows
 from equigym.study import CELLS, LABELS, PAPER, PARTS, ROOT, TASK_LABELS, Cell, _run_dirs, budget
 
 
@@ -61,7 +61,8 @@ def load_cell(cell: Cell, root: Path) -> dict[str, Any]:
             {
                 "seed": int(m["seed"]),
                 "log": r["log"],
-                "trained_q": _trained_q(r["log"], r["train"]),
+                # mean Q once training had started (before it, the critic's initialisation)
+                "trained_q": [float(row["mean_q"]) for row in trained_rows(r["log"], r["train"])],
                 "steps": int(r["log"][-1]["env_steps"]),
                 "figures": summarize(r["log"], r["train"]),
                 "final_wins": wins,
@@ -197,7 +198,7 @@ def table1(cells: dict[str, dict[str, Any]]) -> list[str]:
         "(last 3 - the 3 before) | env steps |",
         "|---|---|---:|---:|---:|---:|---:|",
     ]
-    for name in (*PARTS["table1"], *PARTS["critic"][1:]):
+    for name in PARTS["table1"]:
         d = cells[name]
         for m, label in LABELS.items():
             rs = d["runs"].get(m, [])
@@ -278,23 +279,17 @@ def _verdict(xs: list[float]) -> str:
     return "up" if m - 2 * se > 0 else "down" if m + 2 * se < 0 else "none"
 
 
+def _read(xs: list[float]) -> str:
+    """``xs`` as mean +- s.e. (seeds) with its :func:`_verdict` where there are enough seeds."""
+    v = _verdict(xs)
+    return _fmt(xs) + ("" if v == "-" else f" {v}")
+
+
 def _paired(data: dict[str, Any], a: str, b: str) -> list[float]:
     """Method ``a``'s final success minus ``b``'s, per seed that both have run."""
     fa = {r["seed"]: r["figures"]["final"] for r in data["runs"].get(a, [])}
     fb = {r["seed"]: r["figures"]["final"] for r in data["runs"].get(b, [])}
     return [fa[k] - fb[k] for k in sorted(fa.keys() & fb.keys())]
-
-
-def _trained_q(log: list[dict[str, str]], train: dict[str, dict[str, str]]) -> list[float]:
-    """Mean Q at the evaluations once training has started (as :func:`equigym.steer.summarize`
-    reads it: the entropy coefficient has left its initial value); before that the critic is
-    its initialisation."""
-    alpha0 = train.get(log[0]["env_steps"], {}).get("alpha") if log else None
-    return [
-        float(row["mean_q"])
-        for row in log
-        if alpha0 is not None and train.get(row["env_steps"], {}).get("alpha") not in (None, alpha0)
-    ]
 
 
 def claims(cells: dict[str, dict[str, Any]]) -> list[str]:
@@ -323,9 +318,7 @@ def claims(cells: dict[str, dict[str, Any]]) -> list[str]:
         else:
             reading = "no method improves it" + (" (worse: " + ", ".join(down) + ")" if down else "")
         lines.append(
-            f"| {TASK_LABELS[d['cell'].task]} | "
-            + " | ".join(_fmt(g[m]) + ("" if v[m] == "-" else f" {v[m]}") for m in LABELS)
-            + f" | {reading} |"
+            f"| {TASK_LABELS[d['cell'].task]} | " + " | ".join(_read(g[m]) for m in LABELS) + f" | {reading} |"
         )
     lines += [
         "",
@@ -337,11 +330,8 @@ def claims(cells: dict[str, dict[str, Any]]) -> list[str]:
     ]
     for name in PARTS["table1"]:
         d = cells[name]
-        xs = {m: peak_excess(d, m) for m in LABELS}
         lines.append(
-            f"| {TASK_LABELS[d['cell'].task]} | "
-            + " | ".join(_fmt(xs[m]) + ("" if _verdict(xs[m]) == "-" else f" {_verdict(xs[m])}") for m in LABELS)
-            + " |"
+            f"| {TASK_LABELS[d['cell'].task]} | " + " | ".join(_read(peak_excess(d, m)) for m in LABELS) + " |"
         )
     lines += [
         "",
@@ -353,7 +343,7 @@ def claims(cells: dict[str, dict[str, Any]]) -> list[str]:
         "| setting | method | runs above 0 | highest mean Q | final mean Q |",
         "|---|---|---:|---:|---:|",
     ]
-    for name in PARTS["table1"]:
+    for name in (*PARTS["table1"], *PARTS["critic"][1:]):
         d = cells[name]
         for m, label in LABELS.items():
             rs = d["runs"].get(m, [])
