@@ -13,16 +13,8 @@ STEPS=${2:-3000}
 ROUNDS=${3:-3}
 CPU=${CPU:-0}
 COMMIT=$(git rev-parse --short "$REV")
-CACHE=${HOME}/.cache/equigym-ab/$COMMIT
-OLD=$CACHE/throughput
-if [[ ! -x $OLD ]]; then
-  WT=$(mktemp -d /tmp/equigym-ab.XXXXXX)
-  git worktree add -q --detach "$WT" "$COMMIT"
-  (cd "$WT" && CARGO_TARGET_DIR=$CACHE/target cargo build --release -q -p equigym-envs --example throughput)
-  mkdir -p "$CACHE"
-  cp "$CACHE/target/release/examples/throughput" "$OLD"
-  git worktree remove --force "$WT"
-fi
+source benches/ab_common.sh
+OLD=$(ab_example "$COMMIT" throughput)
 cargo build --release -q -p equigym-envs --example throughput
 NEW=target/release/examples/throughput
 HEAD_DESC="$(git rev-parse --short HEAD)$(git diff --quiet HEAD -- . ':!benches/results' || echo '+changes')"

@@ -14,16 +14,8 @@ STEPS=${2:-150}
 ROUNDS=${3:-5}
 SIZES=16,32,64
 COMMIT=$(git rev-parse --short "$REV")
-CACHE=${HOME}/.cache/equigym-ab/$COMMIT
-OLD=$CACHE/vector_throughput
-if [[ ! -x $OLD ]]; then
-  WT=$(mktemp -d /tmp/equigym-ab.XXXXXX)
-  git worktree add -q --detach "$WT" "$COMMIT"
-  (cd "$WT" && CARGO_TARGET_DIR=$CACHE/target cargo build --release -q -p equigym-envs --example vector_throughput)
-  mkdir -p "$CACHE"
-  cp "$CACHE/target/release/examples/vector_throughput" "$OLD"
-  git worktree remove --force "$WT"
-fi
+source benches/ab_common.sh
+OLD=$(ab_example "$COMMIT" vector_throughput)
 cargo build --release -q -p equigym-envs --example vector_throughput
 NEW=target/release/examples/vector_throughput
 HEAD_DESC="$(git rev-parse --short HEAD)$(git diff --quiet HEAD -- . ':!benches/results' || echo '+changes')"
