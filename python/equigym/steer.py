@@ -100,7 +100,7 @@ def _trainable(config: dict[str, Any]) -> None:
     every = c["eval_every"]
     target = every
     while True:
-        if c.get("deadline") is not None and time.time() > c["deadline"]:
+        if c.get("deadline") is not None and time.time() > c["deadline"] and not _finished(c):
             raise Paused(f"paused at the deadline before {min(target, c['steps'])} env steps")
         target = min(target, c["steps"])
         if c["agent"] == "rust":
@@ -140,6 +140,16 @@ def _trainable(config: dict[str, Any]) -> None:
         if target >= c["steps"]:
             return
         target += every
+
+
+def _finished(c: dict[str, Any]) -> bool:
+    """Whether the trial's run already has all its env steps (its ``summary.json``, under the
+    trial's own output root, whatever the task directory's name): such a trial returns at once
+    at a deadline instead of counting as paused."""
+    for summary in Path(c["out"]).glob(f"*/{c['method']}/seed{c['seed']}/summary.json"):
+        if json.loads(summary.read_text()).get("env_steps", 0) >= c["steps"]:
+            return True
+    return False
 
 
 def _run_sb3(c: dict[str, Any], steps: int) -> Path:
