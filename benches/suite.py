@@ -115,8 +115,12 @@ def bench_vector(env_id, b, threads, args):
     """The vector env at batch size ``b`` for every thread count in ``threads``, the counts'
     repetitions alternating (T=1, T=2, T=1, ...) so that drift in the machine's speed falls on
     all of them alike; each T's pool is started pinned to the first T CPUs, and the main thread
-    is pinned the same way for its repetitions. Returns one result per T; each T > 1 also gets
-    ``scaling_runs`` (its rate over T=1's in the same repetition) and ``scaling`` (their median)."""
+    is pinned the same way for its repetitions. Within a repetition every T does the same work:
+    the same reset seed (untimed) and the same actions, and since the thread count moves no bits,
+    the same trajectories (random actions with auto-reset otherwise give each T its own mix of
+    contacts and resets, a workload difference the paired ratio would read as scaling). Returns
+    one result per T; each T > 1 also gets ``scaling_runs`` (its rate over T=1's in the same
+    repetition) and ``scaling`` (their median)."""
     import gymnasium
 
     cpus = ALL_CPUS
@@ -138,11 +142,12 @@ def bench_vector(env_id, b, threads, args):
         for a in [envs[t].action_space.sample() for _ in range(max(5, n // 10))]:
             envs[t].step(a)
     runs = {t: {"rate": [], "step_us": [], "rust_us": [], "py_share": [], "cpu_us": []} for t in threads}
-    for _ in range(args.vector_reps):
+    for rep in range(args.vector_reps):
+        actions = [envs[threads[0]].action_space.sample() for _ in range(n)]
         for t in threads:
             pin_first(cpus, t)
             core = envs[t].unwrapped.core
-            actions = [envs[t].action_space.sample() for _ in range(n)]
+            envs[t].reset(seed=args.seed + 1000 + rep)
             core.stepping_seconds = 0.0
             c0 = time.process_time()  # CPU time of every thread of the process, load-independent
             t0 = time.perf_counter()
@@ -304,7 +309,8 @@ def report(meta, single, pandagym, vector, plot_name, latent=None, edp=None):
     L += ["", f"## Vector env ({m['args']['vector_task']}, `gymnasium.make_vec`, auto-reset on)", "",
           "Env steps/s of the whole batch; *Python share* = (wall time of `EquiVectorEnv.step` − time inside the "
           "Rust batched step) / wall time. T threads run pinned to the first T CPUs; the thread counts' repetitions "
-          "alternate, and *T=2 / T=1* is the median of the repetitions' ratios. *CPUs used* = process CPU "
+          "alternate, each repetition the same reset seed and actions (the same trajectories) for every T, and "
+          "*T=2 / T=1* is the median of the repetitions' ratios. *CPUs used* = process CPU "
           "time (all threads) / wall time during the timed steps: 2.0 would mean both cores were ours; on a machine "
           "busy with other work it shows how much CPU the run actually got, which bounds the thread scaling.", "",
           "| B | " + " | ".join(f"T={t} env steps/s | T={t} µs/step | T={t} Python share | T={t} CPUs used"
