@@ -53,7 +53,7 @@ def test_the_report_pairs_each_run_with_its_own_seeds_base_and_runs_nothing(tmp_
     _fake_run(tmp_path, cell, "dsrl", 1, [0.5, 0.4, 0.3, 0.3, 0.3])  # final 0.3, peak 0.4
     _fake_run(tmp_path, cell, "equi", 0, [0.5, 0.5])  # the budget not reached yet: not counted
     log = cell.out(tmp_path) / "lift" / "equi" / "seed0" / "log.csv"
-    log.write_text(log.read_text().replace("16000,", "8000,"))
+    log.write_text(log.read_text().replace(f"{cell.steps},", f"{cell.steps // 2},"))
     base = {0: 0.6, 1: 0.4}
 
     def evaluate_base(task, *, seed, scale, episodes, policy, env, threads):
@@ -75,7 +75,7 @@ def test_the_report_pairs_each_run_with_its_own_seeds_base_and_runs_nothing(tmp_
     report = study_report.write(tmp_path)
     # the Lift row of the final table: the base 0.5 +- 0.1 over two seeds, DSRL 0.5 +- 0.2
     assert (
-        "| Lift (16,000 steps) | 0.500 +- 0.100 (2) [0.617] | 0.250 +- 0.050 (2) (s = 0.5) | 0.500 +- 0.200 (2) |"
+        f"| Lift ({cell.steps:,} steps) | 0.500 +- 0.100 (2) [0.617] | 0.250 +- 0.050 (2) (s = 0.5) | 0.500 +- 0.200 (2) |"
         in report
     )
     assert "0.650 +- 0.250 (2) [0.808]" in report  # peak, beside the paper's
@@ -145,3 +145,21 @@ def test_the_bases_own_peak_is_the_expected_best_of_as_many_noisy_evaluations():
     draws = np.random.default_rng(0).binomial(50, 0.864, size=(200_000, 8)).max(axis=1) / 50
     assert study_report.expected_peak(0.864, 50, 8) == pytest.approx(draws.mean(), abs=1e-3)
     assert study_report.expected_peak(0.864, 50, 8) > 0.864 + 0.05  # what a peak over 8 evaluations adds
+
+
+def test_the_plan_counts_what_each_run_still_lacks(tmp_path):
+    cell = study.CELLS["square"]
+
+    def summary(method, seed, steps):
+        d = cell.out(tmp_path) / cell.task / method / f"seed{seed}"
+        d.mkdir(parents=True)
+        (d / "log.csv").write_text("env_steps,success_rate,mean_q,seconds\n")
+        (d / "summary.json").write_text(json.dumps({"env_steps": steps, "seconds": 0.1 * steps}))
+
+    summary("dsrl", 0, cell.steps // 4)  # a quarter of the way
+    summary("equi", 0, cell.steps)  # finished
+    [b] = study.budget([cell], tmp_path)
+    runs = len(cell.methods) * len(cell.seeds)
+    assert b["done"] == 1 and b["runs"] == runs
+    assert b["core_h_per_run"] == pytest.approx(0.1 * cell.steps / 3600)  # the runs' own clocks
+    assert b["core_h_left"] == pytest.approx((runs - 1 - 0.25) * b["core_h_per_run"])

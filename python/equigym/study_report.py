@@ -224,7 +224,11 @@ def comparison(cells: dict[str, dict[str, Any]], names: tuple[str, ...], title: 
     for name in names:
         d = cells[name]
         scale, narrow = _best_narrow(d)
-        row = [d["cell"].label, _fmt(_control_rates(d, 1.0)), _fmt(narrow) + (f" (s = {scale:g})" if scale else "")]
+        row = [
+            f"{d['cell'].label} ({d['cell'].steps // 1000}k steps)",
+            _fmt(_control_rates(d, 1.0)),
+            _fmt(narrow) + (f" (s = {scale:g})" if scale else ""),
+        ]
         for m in LABELS:
             finals = [r["figures"]["final"] for r in d["runs"].get(m, [])]
             row.append(f"{_fmt(finals)} / {_fmt(gains(d, m), n=False)}" if finals else "-")
@@ -520,14 +524,14 @@ def cost_summary(root: Path) -> list[str]:
     """What the whole study costs: core-hours done and left (``plan``'s estimate) and the wall
     time of its invocations so far."""
     b = budget(list(CELLS.values()), root)
-    done = sum(x["done"] * x["core_h_per_run"] for x in b)
-    left = sum((x["runs"] - x["done"]) * x["core_h_per_run"] for x in b)
+    left = sum(x["core_h_left"] for x in b)
+    done = sum(x["runs"] * x["core_h_per_run"] for x in b) - left
     runs, finished = sum(x["runs"] for x in b), sum(x["done"] for x in b)
     record = root / "study.json"
     r = json.loads(record.read_text()) if record.exists() else {"invocations": []}
     return [
         f"The whole study: {runs} runs, about {done + left:.1f} core-hours; "
-        f"{finished} runs finished (about {done:.1f} core-hours), about {left:.1f} core-hours left "
+        f"{finished} runs finished, about {done:.1f} core-hours done, about {left:.1f} core-hours left "
         "(`python -m equigym.study plan`, per cell). Wall time of its invocations so far on this machine: "
         f"{r.get('wall_seconds', 0) / 3600:.2f} h ({len(r['invocations'])} invocations).",
     ]
