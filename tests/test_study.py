@@ -20,6 +20,8 @@ def test_a_cell_two_parts_need_is_run_once_and_jobs_are_seed_major():
     names = [c.name for c in cells]
     assert names.count("lift") == 1 and names[:3] == ["lift", "stack", "square"]
     assert {c.dial for c in cells if c.dial is not None} == {0.6, 0.8, 1.0, 1.25, math.inf}
+    only = study.cells_of(["table1", "dial"], only=["lift-scale0.6", "lift"])
+    assert [c.name for c in only] == ["lift", "lift-scale0.6"]  # the parts' order, only those named
     jobs = study.jobs(study.cells_of(["controller"], methods=["dsrl"]))
     assert [(j["cell"], j["seed"]) for j in jobs[:3]] == [("lift", 0), ("lift-cartesian-nolimits", 0), ("lift", 1)]
     assert sum(j["cell"] == "lift" for j in jobs) == 5 and sum(j["cell"] != "lift" for j in jobs) == 3

@@ -2,7 +2,7 @@
 
     python -m equigym.study plan [--parts table1 dial ...]          # the runs and what they cost
     python -m equigym.study prepare --cell stack-nolimits           # an EDP the limits ablation needs
-    python -m equigym.study run [--parts ...] [--out docs/steering/study] [--cpus 2] [--address HOST:PORT]
+    python -m equigym.study run [--parts ...] [--cells ...] [--out docs/steering/study] [--cpus 2] [--address HOST:PORT]
     python -m equigym.study report [--out docs/steering/study] [--update-docs]
 
 A study is a set of *cells*: one environment setting with its EDP, run by the steering methods
@@ -215,13 +215,16 @@ PREPARE = {
 }  # fmt: skip
 
 
-def cells_of(parts: list[str], methods: list[str] | None = None, quick: bool = False) -> list[Cell]:
+def cells_of(
+    parts: list[str], methods: list[str] | None = None, quick: bool = False, only: list[str] | None = None
+) -> list[Cell]:
     """The cells the parts need, each once, in the order the parts name them; with ``methods``
-    only those methods' runs; ``quick``: the pipeline's smoke test (seed 0, 64 env steps,
-    2-episode evaluations every 32), to check a set-up before paying for the study."""
+    only those methods' runs, with ``only`` only those cells (e.g. to finish one cell before
+    the others); ``quick``: the pipeline's smoke test (seed 0, 64 env steps, 2-episode
+    evaluations every 32), to check a set-up before paying for the study."""
     names: list[str] = []
     for p in parts:
-        names += [n for n in PARTS[p] if n not in names]
+        names += [n for n in PARTS[p] if n not in names and (not only or n in only)]
     cells = [CELLS[n] for n in names]
     if methods:
         cells = [replace(c, methods=tuple(m for m in c.methods if m in methods)) for c in cells]
@@ -372,7 +375,7 @@ def run(a: argparse.Namespace) -> None:
         raise SystemExit("the study needs Ray Tune: pip install 'equigym[sweep]' (or 'ray[tune]')") from e
     root = Path(a.out).resolve()
     os.chdir(ROOT)  # EDP paths are relative to the checkout, in the runs' records too
-    cells = cells_of(a.parts, a.methods, a.quick)
+    cells = cells_of(a.parts, a.methods, a.quick, a.cells)
     missing = [c for c in cells if not (ROOT / c.policy_path()).exists()]
     if missing:
         raise SystemExit(
@@ -389,7 +392,8 @@ def run(a: argparse.Namespace) -> None:
     measure_dial(cells, root, 2 if a.quick else a.breaking_episodes)
     by_name = {c.name: c for c in cells}
     space = {"job": tune.grid_search(jobs(cells))}
-    name = "study-" + "-".join(sorted(a.parts)) + ("-" + "-".join(sorted(a.methods)) if a.methods else "")
+    name = "study-" + "-".join(sorted(a.parts))
+    name += "".join("-" + "-".join(sorted(x)) for x in (a.methods, a.cells) if x)
     settings = json.dumps([asdict(c) for c in cells], sort_keys=True, default=str)
     settings_file = root / "tune" / f"{name}.settings.json"
     storage = root / "tune"
@@ -450,6 +454,7 @@ def main(argv: list[str] | None = None) -> None:
             s.add_argument("--parts", nargs="+", choices=sorted(PARTS), default=list(PARTS))
             s.add_argument("--cpus", type=int, default=os.cpu_count() or 1, help="local Ray CPUs; one per trial")
             s.add_argument("--methods", nargs="+", choices=METHODS, default=None, help="only these methods' runs")
+            s.add_argument("--cells", nargs="+", choices=sorted(CELLS), default=None, help="only these cells' runs")
             s.add_argument("--quick", action="store_true", help="a smoke test of the pipeline (tiny budgets)")
     r = sub.choices["run"]
     r.add_argument("--address", default=None, help="join a Ray cluster (its nodes hold this checkout at this path)")
@@ -469,7 +474,7 @@ def main(argv: list[str] | None = None) -> None:
     pr.add_argument("--cell", required=True)
     a = p.parse_args(argv)
     if a.cmd == "plan":
-        print(plan(cells_of(a.parts, a.methods, a.quick), Path(a.out), a.cpus))
+        print(plan(cells_of(a.parts, a.methods, a.quick, a.cells), Path(a.out), a.cpus))
     elif a.cmd == "run":
         run(a)
     elif a.cmd == "prepare":
