@@ -1,6 +1,7 @@
 //! Whole runs on the Lift latent environment (tiny nets, short episodes): the same seed gives
 //! identical logs and weights with 1 and 2 threads; a run killed after its second evaluation and
-//! started again ends bit for bit where the uninterrupted run ends; and a committed golden file
+//! started again, or a finished one given a larger budget, ends bit for bit where the
+//! uninterrupted run ends; and a committed golden file
 //! catches any change in numerics (physics, EDP, kernels, agents).
 //!
 //! After an intended change of numerics, regenerate the golden file with
@@ -177,12 +178,24 @@ fn noise_aliased_runs_resume_bit_for_bit_and_learn_otherwise() {
     let resumed = run(&cc).unwrap();
     assert_eq!((numbers(&a.rows), a.params_hash), (numbers(&resumed.rows), resumed.params_hash), "resumed");
 
+    // A finished run whose budget grows (the study's way of extending a cell) continues from its
+    // checkpoint to what a run with the larger budget from the start ends at.
+    let e_dir = scratch("na-e");
+    let mut ce = cfg(&e_dir);
+    ce.steps = 256;
+    let short = run(&ce).unwrap();
+    assert_eq!(short.rows.len(), 3);
+    ce.steps = 384;
+    let extended = run(&ce).unwrap();
+    assert_eq!((numbers(&a.rows), a.params_hash), (numbers(&extended.rows), extended.params_hash), "extended");
+    assert_eq!(a.grad_steps, extended.grad_steps);
+
     // A plain run's checkpoint is not resumed as a noise-aliased one.
     let mut cp = tiny(method, &plain_dir);
     cp.steps = 512;
     cp.noise_aliased = true;
     assert!(run(&cp).is_err());
-    for d in [a_dir, b_dir, c_dir, plain_dir] {
+    for d in [a_dir, b_dir, c_dir, e_dir, plain_dir] {
         let _ = std::fs::remove_dir_all(d);
     }
 }
