@@ -316,7 +316,7 @@ def claims(cells: dict[str, dict[str, Any]]) -> list[str]:
         up = [LABELS[m] for m in LABELS if v[m] == "up"]
         down = [LABELS[m] for m in LABELS if v[m] == "down"]
         if all(x == "-" for x in v.values()):
-            reading = "not run yet"
+            reading = "too few seeds yet" if any(g.values()) else "not run yet"
         elif up:
             reading = "improved by " + ", ".join(up) + (" (worse: " + ", ".join(down) + ")" if down else "")
         else:
