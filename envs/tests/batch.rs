@@ -284,8 +284,9 @@ fn timed_batch(millis: &[u64], threads: usize) -> BatchEnv<Timed> {
 #[test]
 fn the_members_that_took_longest_on_the_last_step_step_first() {
     // One thread makes the schedule the order: index order while nothing is known, then by
-    // the last step's time, slowest first (here the reverse of the index order).
-    let millis = [1, 4, 7, 10];
+    // the last step's time, slowest first (here the reverse of the index order). The sleeps lie
+    // 40 ms apart so that a loaded machine's late wake-ups (a few ms) cannot reorder them.
+    let millis = [1, 40, 80, 120];
     let mut b = timed_batch(&millis, 1);
     let order = |b: &BatchEnv<Timed>| (0..4).map(|i| b.obs(i).unwrap()[0] as usize).collect::<Vec<_>>();
     b.step(&[0.0; 4]).unwrap();
