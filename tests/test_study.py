@@ -104,9 +104,11 @@ def test_a_smoke_study_pauses_at_its_deadline_and_the_same_command_resumes_it(tm
     assert sorted(p.name for p in experiment.iterdir() if p.is_dir()) == trials  # Tuner.restore
     controls = json.loads((cell.out(tmp_path) / "controls.json").read_text())
     assert len(controls) == 3  # N(0, I), N(0, 0.5^2 I), w = 0 for seed 0
-    # Without Tune's state (as committed logs are), a fresh experiment past its deadline: the
-    # finished runs return at once instead of counting as paused
+    # Without Tune's state and the runs' checkpoints (as committed logs are), a fresh experiment
+    # past its deadline: the finished runs return at once, rerun nothing and are not paused
     shutil.rmtree(tmp_path / "tune")
+    for checkpoint in tmp_path.glob("runs/**/checkpoint.bin"):
+        checkpoint.unlink()
     study.main([*argv, "--hours", "1e-9"])
     assert log.read_text() == before
     record = json.loads((tmp_path / "study.json").read_text())

@@ -97,10 +97,12 @@ def _trainable(config: dict[str, Any]) -> None:
     from ray import tune
 
     c = config
+    if _finished(c):
+        return  # e.g. committed logs on a fresh machine, whose checkpoints are not in git
     every = c["eval_every"]
     target = every
     while True:
-        if c.get("deadline") is not None and time.time() > c["deadline"] and not _finished(c):
+        if c.get("deadline") is not None and time.time() > c["deadline"]:
             raise Paused(f"paused at the deadline before {min(target, c['steps'])} env steps")
         target = min(target, c["steps"])
         if c["agent"] == "rust":
@@ -144,8 +146,8 @@ def _trainable(config: dict[str, Any]) -> None:
 
 def _finished(c: dict[str, Any]) -> bool:
     """Whether the trial's run already has all its env steps (its ``summary.json``, under the
-    trial's own output root, whatever the task directory's name): such a trial returns at once
-    at a deadline instead of counting as paused."""
+    trial's own output root, whatever the task directory's name): such a trial returns at once,
+    without its checkpoint (not committed) and past any deadline."""
     for summary in Path(c["out"]).glob(f"*/{c['method']}/seed{c['seed']}/summary.json"):
         if json.loads(summary.read_text()).get("env_steps", 0) >= c["steps"]:
             return True
