@@ -148,10 +148,13 @@ def _finished(c: dict[str, Any]) -> bool:
     """Whether the trial's run already has all its env steps (its ``summary.json``, under the
     trial's own output root, whatever the task directory's name): such a trial returns at once,
     without its checkpoint (not committed) and past any deadline."""
-    for summary in Path(c["out"]).glob(f"*/{c['method']}/seed{c['seed']}/summary.json"):
-        if json.loads(summary.read_text()).get("env_steps", 0) >= c["steps"]:
-            return True
-    return False
+    return any(run_steps(d) >= c["steps"] for d in Path(c["out"]).glob(f"*/{c['method']}/seed{c['seed']}"))
+
+
+def run_steps(d: Path) -> int:
+    """The env steps run directory ``d`` has reached (its ``summary.json``; 0 without one)."""
+    s = d / "summary.json"
+    return int(json.loads(s.read_text()).get("env_steps", 0)) if s.exists() else 0
 
 
 def _run_sb3(c: dict[str, Any], steps: int) -> Path:

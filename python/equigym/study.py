@@ -55,7 +55,16 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from equigym.steer import CONTROL_SCALES, METHODS, RECIPES, _read_run, _trainable, record_invocation, tune_experiment
+from equigym.steer import (
+    CONTROL_SCALES,
+    METHODS,
+    RECIPES,
+    _read_run,
+    _trainable,
+    record_invocation,
+    run_steps,
+    tune_experiment,
+)
 
 #: The repository root: relative paths of cells (EDP files) are relative to it.
 ROOT = Path(__file__).resolve().parents[2]
@@ -275,7 +284,7 @@ def budget(cells: list[Cell], root: Path) -> list[dict[str, Any]]:
     cost = _cost_per_step(root)
     out = []
     for cell in cells:
-        reached = [min(_steps(d), cell.steps) for d in _run_dirs(cell, root) if (d / "summary.json").exists()]
+        reached = [min(run_steps(d), cell.steps) for d in _run_dirs(cell, root)]
         runs = len(cell.methods) * len(cell.seeds)
         per_step = _cell_cost(cost, cell) / 3600
         out.append(
@@ -311,10 +320,6 @@ def plan(cells: list[Cell], root: Path, cpus: int) -> str:
     lines.append("")
     lines.append(f"Left: {total_left:.1f} core-hours, about {total_left / cpus:.1f} h on {cpus} CPUs.")
     return "\n".join(lines)
-
-
-def _steps(d: Path) -> int:
-    return int(json.loads((d / "summary.json").read_text()).get("env_steps", 0))
 
 
 def _trial_config(cell: Cell, job: dict[str, Any], root: Path) -> dict[str, Any]:
