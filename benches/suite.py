@@ -13,7 +13,11 @@ Measures, taking turns (never two measurements at once):
 2. the native vector env (gymnasium.make_vec) for B in --batch-sizes on 1 and 2 threads
    (pinned to the first T CPUs): env steps/s, time per batched step, and the share of each step
    spent in Python (wall time of EquiVectorEnv.step minus the time inside the Rust batch step,
-   which the core measures with the GIL released); vector reset time;
+   which the core measures with the GIL released); vector reset time; and, from B = 16, the
+   machine's own 2-core ceiling: the one-thread env beside an independent copy of itself in
+   another process on the second CPU (``_vector_worker.py``), both stepping the same work at
+   once, their summed rate over the one-thread rate (what two cores here give work that shares
+   nothing but the hardware; on a virtual machine whose two CPUs slow each other it is below 2);
 3. the latent-action vector env (``gymnasium.make_vec("EquiLift-Latent-v0")``: one batched DDIM
    of the shipped EDP + the chunks' env steps per call) for B in --latent-batch-sizes on 1 and 2
    threads, and the EDP's chunks/s in Rust vs the same MLP + DDIM in PyTorch (needs torch).
@@ -142,6 +146,11 @@ def bench_vector(env_id, b, threads, args):
         for a in [envs[t].action_space.sample() for _ in range(max(5, n // 10))]:
             envs[t].step(a)
     runs = {t: {"rate": [], "step_us": [], "rust_us": [], "py_share": [], "cpu_us": []} for t in threads}
+    measure_ceiling = b >= SCALING_MIN_BATCH and threads[0] == 1 and len(cpus) >= 2
+    pair = _CeilingPair(env_id, b, cpus, envs[threads[0]]) if measure_ceiling else None
+    pair_rates = []
+    if pair:
+        pair.run([envs[threads[0]].action_space.sample() for _ in range(max(5, n // 10))], args.seed)  # warm-up
     for rep in range(args.vector_reps):
         actions = [envs[threads[0]].action_space.sample() for _ in range(n)]
         for t in threads:
@@ -161,6 +170,13 @@ def bench_vector(env_id, b, threads, args):
             k["step_us"].append(1e6 * wall / n)
             k["rust_us"].append(1e6 * rust / n)
             k["py_share"].append((wall - rust) / wall)
+        if pair:
+            pair_rates.append(pair.run(actions, args.seed + 1000 + rep))
+    if pair:
+        pair.close()
+        one = runs[threads[0]]["rate"]
+        ceiling = [x / y for x, y in zip(pair_rates, one)]
+        res[threads[0]].update(pair_steps_per_s_runs=pair_rates, ceiling_runs=ceiling, ceiling=statistics.median(ceiling))
     for t in threads:
         k, r = runs[t], res[t]
         i = k["rate"].index(statistics.median_low(k["rate"]))  # report the median run's numbers together
@@ -173,6 +189,56 @@ def bench_vector(env_id, b, threads, args):
         envs[t].close()
     pin_first(cpus, len(cpus))
     return [res[t] for t in threads]
+
+
+class _CeilingPair:
+    """The machine's own 2-core ceiling for the vector env at one batch size: the suite's
+    one-thread env on the first CPU and an independent one-thread copy in another process
+    (``_vector_worker.py``) on the second, stepping the same work at the same moment. Their
+    summed rate over the one-thread rate alone is what two cores give two copies that share
+    nothing but the hardware, so a 2-thread pool's T=2 / T=1 can be read against it."""
+
+    def __init__(self, env_id, b, cpus, env):
+        import subprocess
+        import tempfile
+
+        self.env, self.b, self.cpus = env, b, cpus
+        self.tmp = Path(tempfile.mkdtemp(prefix="equigym-ceiling-")) / "actions.npy"
+        self.proc = subprocess.Popen([sys.executable, str(HERE / "_vector_worker.py"), env_id, str(b), str(cpus[1])],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=HERE)
+        self._expect("ready")
+
+    def _expect(self, word):
+        line = self.proc.stdout.readline().strip()
+        if line != word:
+            raise RuntimeError(f"vector worker: expected {word!r}, got {line!r}")
+
+    def run(self, actions, seed):
+        """Both copies step ``actions`` from ``seed``'s reset at once; their summed env steps/s."""
+        import numpy as np
+
+        np.save(self.tmp, np.stack(actions))
+        self.proc.stdin.write(f"load {self.tmp} {seed}\n")
+        self.proc.stdin.flush()
+        pin_first(self.cpus, 1)
+        self.env.reset(seed=seed)
+        self._expect("ready")
+        self.proc.stdin.write("go\n")
+        self.proc.stdin.flush()
+        t0 = time.perf_counter()
+        for a in actions:
+            self.env.step(a)
+        wall = time.perf_counter() - t0
+        other = float(self.proc.stdout.readline())
+        work = len(actions) * self.b
+        return work / wall + work / other
+
+    def close(self):
+        self.proc.stdin.write("quit\n")
+        self.proc.stdin.flush()
+        self.proc.wait(timeout=60)
+        self.tmp.unlink(missing_ok=True)
+        self.tmp.parent.rmdir()
 
 
 # ---------------------------------------------------------------- latent-action env and EDP
@@ -312,11 +378,15 @@ def report(meta, single, pandagym, vector, plot_name, latent=None, edp=None):
           "alternate, each repetition the same reset seed and actions (the same trajectories) for every T, and "
           "*T=2 / T=1* is the median of the repetitions' ratios. *CPUs used* = process CPU "
           "time (all threads) / wall time during the timed steps: 2.0 would mean both cores were ours; on a machine "
-          "busy with other work it shows how much CPU the run actually got, which bounds the thread scaling.", "",
+          "busy with other work it shows how much CPU the run actually got, which bounds the thread scaling. "
+          "*Ceiling* (B ≥ 16): a second, independent one-thread env in another process on the second CPU, "
+          "stepping the same work at the same moment as the T=1 env on the first; their summed rate over the T=1 rate "
+          "alone, median of the repetitions: what two cores of this machine give two copies that share nothing but "
+          "the hardware, the most a 2-thread pool can reach here.", "",
           "| B | " + " | ".join(f"T={t} env steps/s | T={t} µs/step | T={t} Python share | T={t} CPUs used"
                                for t in m["args"]["threads"])
-          + " | T=2 / T=1 | reset ms (T=1) |",
-          "|---:|" + "---:|---:|---:|---:|" * len(m["args"]["threads"]) + "---:|---:|"]
+          + " | T=2 / T=1 | ceiling | reset ms (T=1) |",
+          "|---:|" + "---:|---:|---:|---:|" * len(m["args"]["threads"]) + "---:|---:|---:|"]
     by = {(v["B"], v["threads"]): v for v in vector}
     for b in m["args"]["batch_sizes"]:
         cells = []
@@ -325,7 +395,7 @@ def report(meta, single, pandagym, vector, plot_name, latent=None, edp=None):
             cells += [fmt(get(v, "env_steps_per_s")), fmt(get(v, "step_us"), ",.0f"),
                       fmt(100 * get(v, "python_share") if get(v, "python_share") is not None else None, ".1f") + " %",
                       fmt(cpus_used(v), ".2f")]
-        L.append(f"| {b} | " + " | ".join(cells) + f" | {times(scaling(by, b))} "
+        L.append(f"| {b} | " + " | ".join(cells) + f" | {times(scaling(by, b))} | {times(get(by.get((b, 1)), 'ceiling'))} "
                  f"| {fmt(get(by.get((b, 1)), 'reset_ms'), '.2f')} |")
     L += latent_section(m, latent, edp)
 
@@ -344,6 +414,13 @@ def report(meta, single, pandagym, vector, plot_name, latent=None, edp=None):
     if big:
         L.append(f"| vector env ≥ {TARGET_THREAD_SCALING}× on 2 threads over 1 (B ≥ {SCALING_MIN_BATCH}) | {min(big):.2f}× – {max(big):.2f}× | "
                  f"{'yes' if min(big) >= TARGET_THREAD_SCALING else ('partly' if max(big) >= TARGET_THREAD_SCALING else '**no**')} |")
+    ceil = [(scaling(by, b), get(by.get((b, 1)), "ceiling")) for b in m["args"]["batch_sizes"] if b >= SCALING_MIN_BATCH]
+    ceil = [(x, c) for x, c in ceil if x and c]
+    if ceil:
+        L.append(f"| (context) the machine's 2-core ceiling: two independent 1-thread copies over one (B ≥ {SCALING_MIN_BATCH}) "
+                 f"| {min(c for _, c in ceil):.2f}× – {max(c for _, c in ceil):.2f}× | – |")
+        L.append(f"| (context) the vector env's T=2 / T=1 as a share of that ceiling (B ≥ {SCALING_MIN_BATCH}) "
+                 f"| {100 * min(x / c for x, c in ceil):.0f} % – {100 * max(x / c for x, c in ceil):.0f} % | – |")
     got = [cpus_used(by.get((b, 2))) for b in m["args"]["batch_sizes"] if b >= SCALING_MIN_BATCH]
     got = [g for g in got if g]
     if got:
@@ -447,10 +524,11 @@ def readme_block(meta, single, pandagym, vector, plot_rel, latent=None, edp=None
         v1, v2 = by.get((b, 1)), by.get((b, 2))
         r1, r2 = get(v1, "env_steps_per_s"), get(v2, "env_steps_per_s")
         sh = [x for x in (get(v1, "python_share"), get(v2, "python_share")) if x is not None]
-        rows.append(f"| {b} | {fmt(r1)} | {fmt(r2)} | {times(scaling(by, b))} | {fmt(cpus_used(v1), '.2f')} / "
-                    f"{fmt(cpus_used(v2), '.2f')} | {fmt(100 * max(sh) if sh else None, '.1f')} % |")
+        rows.append(f"| {b} | {fmt(r1)} | {fmt(r2)} | {times(scaling(by, b))} | {times(get(v1, 'ceiling'))} "
+                    f"| {fmt(cpus_used(v1), '.2f')} / {fmt(cpus_used(v2), '.2f')} | {fmt(100 * max(sh) if sh else None, '.1f')} % |")
     L += ["", f"| vector env ({meta['args']['vector_task']}), B | env steps/s, 1 thread | 2 threads | 2 / 1 "
-              "| CPUs the run got, 1 / 2 threads | Python share of a step |", "|---:|---:|---:|---:|---:|---:|"] + rows
+              "| 2-core ceiling (two independent 1-thread copies / one) | CPUs the run got, 1 / 2 threads "
+              "| Python share of a step |", "|---:|---:|---:|---:|---:|---:|---:|"] + rows
     best = max((v for v in latent or [] if get(v, "latent_steps_per_s")), key=lambda v: v["latent_steps_per_s"], default=None)
     one = next((v for v in latent or [] if v["B"] == 1 and v["threads"] == 1 and get(v, "latent_steps_per_s")), None)
     if best and one:
