@@ -14,24 +14,29 @@ here=docs/steering/study/stack-collapse
 R="--method equi --task stack --seed 0 --eval-every 4000 --terminate-on-success --noise-aliased --target-entropy 20 --policy assets/edp/stack.safetensors"
 study=docs/steering/study/runs/stack
 test -f $study/stack/equi/seed0/checkpoint.bin || { echo "needs the study's Stack seed-0 Equi-DSRL checkpoint (python -m equigym.study run --parts table1)" >&2; exit 1; }
-# 1. The run to 8k (its log must match the study run's first 8k), beside the 32k evaluations.
-target/release/steer run $R --steps 8000 --threads 1 --quiet --out $here/at8k &
-E="$R --steps 32000 --threads 1 --episodes 200"
-: > $here/evals32k.jsonl
-for a in sampled mean best-of-16; do
-  target/release/steer eval $E --out $study --actor $a | sed "s/^{/{\"at\":32000,\"arm\":\"$a\",/" >> $here/evals32k.jsonl
-done
-wait
-# 2. The 8k learner the same ways, and the untrained controls (same starts, same candidates).
-E="$R --steps 8000 --threads 2 --episodes 200"
 out=$here/evals.jsonl
-cp $here/evals32k.jsonl $out && rm $here/evals32k.jsonl
-for a in sampled mean best-of-16; do
-  target/release/steer eval $E --out $here/at8k --actor $a | sed "s/^{/{\"at\":8000,\"arm\":\"$a\",/" >> $out
-done
-for a in sampled best-of-16; do
-  target/release/steer eval $E --out /tmp/stack-untrained --actor $a | sed "s/^{/{\"at\":0,\"arm\":\"$a\",/" >> $out
-done
+untrained=$(mktemp -d)   # an out directory with no checkpoint: the untrained learner
+# evals AT DIR THREADS ARM...: the learner in DIR (trained to AT env steps) as a policy, one
+# JSON line per arm, labelled with AT and the arm.
+evals() {
+  local at=$1 dir=$2 threads=$3 a
+  shift 3
+  for a in "$@"; do
+    target/release/steer eval $R --steps $((at > 0 ? at : 8000)) --threads $threads --episodes 200 --out $dir --actor $a |
+      sed "s/^{/{\"at\":$at,\"arm\":\"$a\",/" >> $out
+  done
+}
+: > $out
+# 1. The run to 8k (its log must match the study run's first 8k), beside the 32k evaluations;
+#    a failure of either stops both.
+target/release/steer run $R --steps 8000 --threads 1 --quiet --out $here/at8k &
+trap 'kill $! 2>/dev/null || true' ERR
+evals 32000 $study 1 sampled mean best-of-16
+wait $!
+trap - ERR
+# 2. The 8k learner the same ways, and the untrained controls (same starts, same candidates).
+evals 8000 $here/at8k 2 sampled mean best-of-16
+evals 0 "$untrained" 2 sampled best-of-16
 # 3. The critic probe at both points.
 target/release/steer probe $R --steps 8000 --threads 2 --out $here/at8k --report $here/probe-8k
 target/release/steer probe $R --steps 32000 --threads 2 --out $study --report $here/probe-32k
