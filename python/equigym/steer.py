@@ -151,10 +151,16 @@ def _finished(c: dict[str, Any]) -> bool:
     return any(run_steps(d) >= c["steps"] for d in Path(c["out"]).glob(f"*/{c['method']}/seed{c['seed']}"))
 
 
-def run_steps(d: Path) -> int:
-    """The env steps run directory ``d`` has reached (its ``summary.json``; 0 without one)."""
+def run_summary(d: Path) -> dict[str, Any]:
+    """Run directory ``d``'s ``summary.json`` (its env steps, clock and weights' hash); empty
+    for a run that has not written one yet."""
     s = d / "summary.json"
-    return int(json.loads(s.read_text()).get("env_steps", 0)) if s.exists() else 0
+    return json.loads(s.read_text()) if s.exists() else {}
+
+
+def run_steps(d: Path) -> int:
+    """The env steps run directory ``d`` has reached (:func:`run_summary`; 0 without one)."""
+    return int(run_summary(d).get("env_steps", 0))
 
 
 def _run_sb3(c: dict[str, Any], steps: int) -> Path:

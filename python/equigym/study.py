@@ -63,6 +63,7 @@ from equigym.steer import (
     _trainable,
     record_invocation,
     run_steps,
+    run_summary,
     tune_experiment,
 )
 
@@ -258,12 +259,10 @@ def _cost_per_step(root: Path) -> dict[tuple[str, str, int | None], float]:
     seen: dict[tuple[str, str, int | None], list[float]] = {}
     for cell in CELLS.values():
         for d in _run_dirs(cell, root):
-            s = d / "summary.json"
-            if s.exists():
-                summary = json.loads(s.read_text())
-                if summary.get("env_steps"):
-                    key = (cell.task, cell.agent, cell.utd)
-                    seen.setdefault(key, []).append(summary["seconds"] / summary["env_steps"])
+            summary = run_summary(d)
+            if summary.get("env_steps"):
+                key = (cell.task, cell.agent, cell.utd)
+                seen.setdefault(key, []).append(summary["seconds"] / summary["env_steps"])
     return {**{(*k, None): v for k, v in DEFAULT_COST.items()}, **{k: sum(v) / len(v) for k, v in seen.items()}}
 
 

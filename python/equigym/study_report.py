@@ -32,7 +32,16 @@ from pathlib import Path
 from typing import Any
 
 from equigym import _core
-from equigym.steer import CONTROL_SCALES, FINAL_EVALUATIONS, _read_run, controls, mean_se, summarize, trained_rows
+from equigym.steer import (
+    CONTROL_SCALES,
+    FINAL_EVALUATIONS,
+    _read_run,
+    controls,
+    mean_se,
+    run_summary,
+    summarize,
+    trained_rows,
+)
 from equigym.study import CELLS, LABELS, PAPER, PARTS, ROOT, TASK_LABELS, Cell, _run_dirs, budget
 
 
@@ -67,7 +76,7 @@ def load_cell(cell: Cell, root: Path) -> dict[str, Any]:
                 "figures": summarize(r["log"], r["train"]),
                 "final_wins": wins,
                 "final_n": k * len(last),
-                "summary": json.loads((d / "summary.json").read_text()) if (d / "summary.json").exists() else None,
+                "summary": run_summary(d),
             }
         )
     for rs in runs.values():
