@@ -12,7 +12,7 @@ import shutil
 
 import pytest
 
-from equigym import steer, study, study_report
+from equigym import _core, study, study_report
 
 
 def test_a_cell_two_parts_need_is_run_once_and_jobs_are_seed_major():
@@ -68,9 +68,9 @@ def test_the_report_pairs_each_run_with_its_own_seeds_base_and_runs_nothing(tmp_
             "success_rate": rate,
         }
 
-    monkeypatch.setattr(steer._core, "evaluate_base", evaluate_base)
+    monkeypatch.setattr(_core, "evaluate_base", evaluate_base)
     study.run_controls([cell], tmp_path, threads=1)
-    monkeypatch.setattr(steer._core, "evaluate_base", lambda *a, **k: pytest.fail("the report evaluated"))
+    monkeypatch.setattr(_core, "evaluate_base", lambda *a, **k: pytest.fail("the report evaluated"))
     data = study_report.load_cell(cell, tmp_path)
     assert [r["figures"]["peak"] for r in data["runs"]["dsrl"]] == [0.9, 0.4] and "equi" not in data["runs"]
     assert study_report.gains(data, "dsrl") == pytest.approx([0.7 - 0.6, 0.3 - 0.4])

@@ -29,7 +29,7 @@ def test_the_record_adds_up_invocations_and_run_clocks(tmp_path):
         d = tmp_path / agent / "lift" / "equi" / "seed0"
         d.mkdir(parents=True)
         (d / "log.csv").write_text(f"env_steps,success_rate,mean_q,seconds\n16,0.5,-1.0,1.0\n32,0.5,-1.0,{seconds}\n")
-    path, clocks = tmp_path / "sweep.json", steer._run_clocks(tmp_path)
+    path, clocks = tmp_path / "sweep.json", steer.run_clocks(tmp_path)
     steer.record_invocation(path, {"started": "t-1", "wall_seconds": 7.0}, start=True)
     steer.record_invocation(path, {"started": "t0"}, start=True, fresh=True, totals=clocks)  # a new sweep
     steer.record_invocation(path, {"wall_seconds": 100.0}, start=False, totals=clocks)

@@ -59,11 +59,11 @@ from equigym.steer import (
     CONTROL_SCALES,
     METHODS,
     RECIPES,
-    _read_run,
-    _trainable,
+    read_run,
     record_invocation,
     run_steps,
     run_summary,
+    run_trial,
     tune_experiment,
 )
 
@@ -322,7 +322,7 @@ def plan(cells: list[Cell], root: Path, cpus: int) -> str:
 
 
 def _trial_config(cell: Cell, job: dict[str, Any], root: Path) -> dict[str, Any]:
-    """What ``equigym.steer._trainable`` takes for one job of ``cell``."""
+    """What ``equigym.steer.run_trial`` takes for one job of ``cell``."""
     return {
         "agent": cell.agent,
         "method": job["method"],
@@ -369,7 +369,7 @@ def run_controls(cells: list[Cell], root: Path, threads: int) -> None:
             continue
         metas = [json.loads((d / "run.json").read_text()) for d in dirs]
         seeds = sorted({int(m["seed"]) for m in metas})
-        controls(_read_run(dirs[0])["meta"], seeds, CONTROL_SCALES, cell.out(root) / "controls.json", threads)
+        controls(read_run(dirs[0])["meta"], seeds, CONTROL_SCALES, cell.out(root) / "controls.json", threads)
 
 
 def run(a: argparse.Namespace) -> None:
@@ -407,7 +407,7 @@ def run(a: argparse.Namespace) -> None:
     def trainable(config: dict[str, Any]) -> None:
         os.chdir(ROOT)  # EDP paths are relative to the checkout; runs record them so
         job = config["job"]
-        _trainable({**_trial_config(by_name[job["cell"]], job, root), "deadline": deadline})
+        run_trial({**_trial_config(by_name[job["cell"]], job, root), "deadline": deadline})
 
     def settings_written(restored: bool) -> None:
         if not restored:

@@ -35,9 +35,9 @@ from equigym import _core
 from equigym.steer import (
     CONTROL_SCALES,
     FINAL_EVALUATIONS,
-    _read_run,
     controls,
     mean_se,
+    read_run,
     run_summary,
     summarize,
     trained_rows,
@@ -58,7 +58,7 @@ def load_cell(cell: Cell, root: Path) -> dict[str, Any]:
     runs: dict[str, list[dict[str, Any]]] = {}
     meta = None
     for d in _run_dirs(cell, root):
-        r = _read_run(d)
+        r = read_run(d)
         if not r["log"] or int(r["log"][-1]["env_steps"]) < cell.steps:
             continue  # a run in progress counts once it reaches the cell's budget
         m = r["meta"]
