@@ -363,7 +363,7 @@ def run(
         model = model.__class__.load(ckpt / "model.zip", env=model.get_env(), device="cpu")
         model.load_replay_buffer(ckpt / "replay.pkl")
     else:  # logs of an older run without a checkpoint would mix two runs
-        for stale in ("log.csv", "train.csv"):
+        for stale in ("log.csv", "train.csv", "summary.json"):
             (run_dir / stale).unlink(missing_ok=True)
     (run_dir / "run.json").write_text(json.dumps(meta, indent=1))
     print(json.dumps(meta))
@@ -373,6 +373,10 @@ def run(
         model.learn(total_timesteps=remaining + model.n_envs, callback=cb, reset_num_timesteps=False)
     if cb.bar is not None:
         cb.bar.close()
+    # The run directory's layout is the Rust runner's (equigym.steer.runs): summary.json says how
+    # far the run got and its clock, so that a sweep or the study can tell a finished run.
+    summary = {"agent": "sb3", "env_steps": model.num_timesteps * chunk, "seconds": round(time.time() - cb.t0, 1)}
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     return run_dir
 
 

@@ -12,6 +12,7 @@ pytest.importorskip("stable_baselines3")
 
 from baselines import steer  # noqa: E402
 from equigym.report import write_report  # noqa: E402
+from equigym.steer import resume_steps, run_steps  # noqa: E402
 
 TINY = {"name": "tiny", "width": 16, "layers": 1, "utd": 1, "batch": 16, "n_envs": 2, "warmup": 8, "ent_init": 1.0}
 
@@ -31,6 +32,8 @@ def test_run_logs_resumes_and_reports(method, tmp_path):
     first_step = 2 if method == "sac" else 8
     assert [int(r["env_steps"]) for r in first] == [first_step, 32, 64]
     assert (run_dir / "checkpoint" / "model.zip").exists() and (run_dir / "checkpoint" / "replay.pkl").exists()
+    # The Rust runner's layout: summary.json says how far the run got, and equigym.steer reads it
+    assert run_steps(run_dir) == 64 and resume_steps(run_dir) == 64
     meta = json.loads((run_dir / "run.json").read_text())
     assert meta["method"] == method and meta["params_actor"] > 0
     # "Killed" after 64 steps; asking for 128 continues from the checkpoint, replay buffer included.
@@ -40,6 +43,7 @@ def test_run_logs_resumes_and_reports(method, tmp_path):
     steps = [int(r["env_steps"]) for r in second]
     assert steps == sorted(steps) and steps[-1] >= 128 - 8
     assert steps[len(first)] > steps[len(first) - 1]  # no restart from zero
+    assert run_steps(run_dir) >= 128
     intervals = [s // 32 for s in steps]
     assert len(set(intervals)) == len(intervals)  # one evaluation per interval, across the resume too
     seconds = [float(r["seconds"]) for r in second]

@@ -92,7 +92,7 @@ def test_a_smoke_study_pauses_at_its_deadline_and_the_same_command_resumes_it(tm
     argv = ["run", "--parts", "controller", "--methods", "dsrl", "--quick", "--cpus", "1", "--out", str(tmp_path)]
     study.main([*argv, "--hours", "1e-9"])  # past its deadline before the first interval
     assert not list(tmp_path.glob("runs/*/*/*/seed0/log.csv"))
-    study.main(argv)
+    study.main([*argv, "--hours", "1", "--whole-runs"])  # the runs fit in the hour: they start
     cell = study.CELLS["lift-cartesian-nolimits"]
     log = cell.out(tmp_path) / "lift-nolimits-cartesian" / "dsrl" / "seed0" / "log.csv"
     assert [int(r["env_steps"]) for r in csv.DictReader(open(log))][-2:] == [32, 64]
@@ -153,16 +153,24 @@ def test_the_bases_own_peak_is_the_expected_best_of_as_many_noisy_evaluations():
     assert study_report.expected_peak(0.864, 50, 8) > 0.864 + 0.05  # what a peak over 8 evaluations adds
 
 
+def test_whole_runs_needs_a_deadline():
+    with pytest.raises(SystemExit):
+        study.main(["run", "--parts", "controller", "--quick", "--whole-runs"])
+
+
 def test_the_plan_counts_what_each_run_still_lacks(tmp_path):
     cell = study.CELLS["square"]
 
-    def summary(method, seed, steps):
+    def summary(method, seed, steps, checkpoint=False):
         d = cell.out(tmp_path) / cell.task / method / f"seed{seed}"
         d.mkdir(parents=True)
         (d / "log.csv").write_text("env_steps,success_rate,mean_q,seconds\n")
         (d / "summary.json").write_text(json.dumps({"env_steps": steps, "seconds": 0.1 * steps}))
+        if checkpoint:
+            (d / "checkpoint.bin").write_bytes(b"")
 
-    summary("dsrl", 0, cell.steps // 4)  # a quarter of the way
+    summary("dsrl", 0, cell.steps // 4, checkpoint=True)  # a quarter of the way, resumable here
+    summary("approx", 0, cell.steps // 2)  # half-way on a machine that kept its checkpoint: starts over
     summary("equi", 0, cell.steps)  # finished
     [b] = study.budget([cell], tmp_path)
     runs = len(cell.methods) * len(cell.seeds)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import time
 
 import pytest
 
@@ -98,3 +99,25 @@ def test_an_asha_screen_runs_each_configuration_in_its_own_directory(tmp_path):
             assert [int(r["env_steps"]) for r in csv.DictReader(f)][-1] in (32, 64)
     table = (tmp_path / "screen.md").read_text()
     assert table.count("| seed0 |") == 2
+
+
+def test_a_trial_that_cannot_finish_by_its_deadline_does_not_start(tmp_path):
+    pytest.importorskip("ray.tune", reason="the sweep extra (Ray Tune) is not installed")
+    c = {"agent": "rust", "method": "dsrl", "task": "lift", "seed": 0, "steps": 64, "out": str(tmp_path)}
+    c |= {"preset": "cpu", "env": {}, "eval_every": 32, "eval_episodes": 2, "policy": None, "ent_init": None}
+    # 64 env steps at a minute each do not fit in the ten minutes left: refused before any step
+    with pytest.raises(steer.Paused, match="not started"):
+        steer.run_trial({**c, "deadline": time.time() + 600, "cost_per_step": 60.0})
+    assert not list(tmp_path.iterdir())
+    # a run that resumes half-way here needs half as long: 32 steps x 10 s fit in 10 minutes
+    d = tmp_path / "lift" / "dsrl" / "seed0"
+    d.mkdir(parents=True)
+    (d / "summary.json").write_text(json.dumps({"env_steps": 32, "seconds": 1.0}))
+    assert steer.resume_steps(d) == 0  # no checkpoint here: it would start over
+    with pytest.raises(steer.Paused, match="not started"):
+        steer.run_trial({**c, "deadline": time.time() + 600, "cost_per_step": 10.0})
+    (d / "checkpoint.bin").write_bytes(b"")
+    assert steer.resume_steps(d) == 32
+    with pytest.raises(Exception) as started:  # it starts, and reads the (empty) checkpoint
+        steer.run_trial({**c, "deadline": time.time() + 600, "cost_per_step": 10.0})
+    assert not isinstance(started.value, steer.Paused) and "checkpoint" in str(started.value).lower()

@@ -25,7 +25,10 @@ evaluation interval at a time from the agent's own checkpoint (``equigym.steer``
 that is stopped and started again (``Tuner.restore`` where the experiment's settings are
 unchanged, a fresh experiment over the same run directories otherwise) loses at most one
 interval per running trial and gives the same bits; ``--hours`` stops the trials between
-intervals after that long (a session's budget), and the same command resumes them. A study's
+intervals after that long (a session's budget), and the same command resumes them; with
+``--whole-runs`` a run starts only where it can finish by then (for machines that do not keep
+the runs' checkpoints until the next invocation, so that no CPU goes to progress that would be
+lost; the cheaper trials after it fill the time). A study's
 logs committed without ``tune/`` (Tune's own state, kept out of the repository) resume on
 another machine at the run level: a fresh experiment over the same run directories, in which
 finished runs return at once. Before the runs it measures the symmetry
@@ -61,6 +64,7 @@ from equigym.steer import (
     RECIPES,
     read_run,
     record_invocation,
+    resume_steps,
     run_steps,
     run_summary,
     run_trial,
@@ -89,6 +93,10 @@ DEFAULT_COST = {("lift", "rust"): 0.020, ("stack", "rust"): 0.045, ("square", "r
 #: training at the cpu preset's UTD (the Lift runs' cost table in the report), scaled by the
 #: ratio of the UTDs.
 TRAIN_SHARE, PRESET_UTD = 0.8, 4
+#: ``--whole-runs``: a run starts only where its cell's mean measured cost times this fits
+#: before the deadline (a margin for runs slower than the mean: a run's clock depends on what
+#: shares the machine).
+WHOLE_RUN_MARGIN = 1.25
 #: Lift's budget, for every Lift cell that is compared with Table 1's (the controller ablation
 #: and the dial share its runs): at 16k Equi-DSRL's success was still rising (the report's
 #: "still moving?" column, 5 seeds), so the runs go on to 32k, one evaluation every 2k.
@@ -279,11 +287,12 @@ def budget(cells: list[Cell], root: Path) -> list[dict[str, Any]]:
     """Per cell: its runs, those finished, core-hours per run (measured where the study has
     finished runs of its kind, else estimated: :func:`_cost_per_step`) and core-hours left (the
     env steps its runs still lack, so a run part-way, or one whose budget grew, counts for what
-    it has still to do)."""
+    it has still to do from where it can resume on this machine)."""
     cost = _cost_per_step(root)
     out = []
     for cell in cells:
-        reached = [min(run_steps(d), cell.steps) for d in _run_dirs(cell, root)]
+        # a finished run is done; a run part-way counts where it can resume (its checkpoint here)
+        reached = [cell.steps if run_steps(d) >= cell.steps else resume_steps(d) for d in _run_dirs(cell, root)]
         runs = len(cell.methods) * len(cell.seeds)
         per_step = _cell_cost(cost, cell) / 3600
         out.append(
@@ -403,11 +412,16 @@ def run(a: argparse.Namespace) -> None:
     storage = root / "tune"
 
     deadline = started + 3600 * a.hours if a.hours else None
+    cost = _cost_per_step(root)
+    # seconds per env step of each cell's runs, with a margin, for trials that must not start
+    # what they cannot finish by the deadline
+    per_step = {c.name: _cell_cost(cost, c) * WHOLE_RUN_MARGIN for c in cells} if a.whole_runs else {}
 
     def trainable(config: dict[str, Any]) -> None:
         os.chdir(ROOT)  # EDP paths are relative to the checkout; runs record them so
         job = config["job"]
-        run_trial({**_trial_config(by_name[job["cell"]], job, root), "deadline": deadline})
+        c = {**_trial_config(by_name[job["cell"]], job, root), "deadline": deadline}
+        run_trial({**c, "cost_per_step": per_step.get(job["cell"])})
 
     def settings_written(restored: bool) -> None:
         if not restored:
@@ -470,6 +484,12 @@ def main(argv: list[str] | None = None) -> None:
         help="stop the trials between evaluation intervals after this long, then evaluate the controls; "
         "the same command resumes them",
     )
+    r.add_argument(
+        "--whole-runs",
+        action="store_true",
+        help="with --hours: start a run only where it can finish before the deadline (its cell's measured cost), "
+        "for machines that do not keep the runs' checkpoints until the next invocation",
+    )
     c = sub.add_parser("controls", help="evaluate the control arms of the runs there are (run does it at its end)")
     c.add_argument("--out", default="docs/steering/study")
     c.add_argument("--cpus", type=int, default=os.cpu_count() or 1, help="evaluation threads")
@@ -480,6 +500,8 @@ def main(argv: list[str] | None = None) -> None:
     if a.cmd == "plan":
         print(plan(cells_of(a.parts, a.methods, a.quick, a.cells), Path(a.out), a.cpus))
     elif a.cmd == "run":
+        if a.whole_runs and not a.hours:
+            p.error("--whole-runs needs --hours (the deadline the runs must finish by)")
         run(a)
     elif a.cmd == "prepare":
         prepare(a.cell)

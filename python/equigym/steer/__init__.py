@@ -46,12 +46,14 @@ from equigym.steer.analysis import (
 )
 from equigym.steer.cli import add_run_arguments, main
 from equigym.steer.runs import (
+    CHECKPOINTS,
     DEFAULT_EVAL,
     METHODS,
     RECIPES,
     RUN_OPTIONS,
     TASKS,
     read_run,
+    resume_steps,
     run,
     run_env,
     run_steps,
@@ -72,6 +74,7 @@ from equigym.steer.trials import (
 )
 
 __all__ = [
+    "CHECKPOINTS",
     "CONTROL_SCALES",
     "DEFAULT_EVAL",
     "FINAL_EVALUATIONS",
@@ -89,6 +92,7 @@ __all__ = [
     "mean_se",
     "parse_grid",
     "read_run",
+    "resume_steps",
     "record_invocation",
     "report",
     "run",

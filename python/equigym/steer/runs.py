@@ -85,6 +85,18 @@ def run_steps(d: Path) -> int:
     return int(run_summary(d).get("env_steps", 0))
 
 
+#: A run's checkpoint, the Rust runner's and the SB3 runner's (``baselines.steer``). Neither is
+#: committed: a run paused on one machine starts over on another.
+CHECKPOINTS = ("checkpoint.bin", "checkpoint/model.zip")
+
+
+def resume_steps(d: Path) -> int:
+    """The env steps run directory ``d`` continues from when it is advanced again: its
+    :func:`run_steps` where its checkpoint is on this machine, else 0 (the runners start a run
+    without a checkpoint afresh)."""
+    return run_steps(d) if any((d / c).exists() for c in CHECKPOINTS) else 0
+
+
 def read_run(d: Path) -> dict[str, Any]:
     with open(d / "log.csv", newline="") as f:
         log = list(csv.DictReader(f))

@@ -25,6 +25,7 @@ from equigym.steer.runs import (
     VALUED_OPTIONS,
     env_options,
     read_run,
+    resume_steps,
     run,
     run_options,
     run_steps,
@@ -32,13 +33,18 @@ from equigym.steer.runs import (
 
 
 class Paused(RuntimeError):
-    """A trial stopped at its invocation's deadline (``deadline`` in its config, epoch seconds):
-    the run keeps its checkpoint, and restoring the experiment resumes it."""
+    """A trial stopped at its invocation's deadline (``deadline`` in its config, epoch seconds),
+    or not started because it could not finish by then: the run keeps its checkpoint, and
+    restoring the experiment resumes it."""
 
 
 def run_trial(config: dict[str, Any]) -> None:
     """One sweep trial: advance the run an evaluation interval at a time, report after each;
-    past ``config["deadline"]`` (when given) stop between intervals with :class:`Paused`."""
+    past ``config["deadline"]`` (when given) stop between intervals with :class:`Paused`. With
+    ``config["cost_per_step"]`` (seconds per env step) as well, a run that would not reach its
+    ``steps`` by the deadline from where it resumes is not started at all: on a machine that
+    does not outlive the invocation, its progress would be lost with its checkpoint, and the CPU
+    goes to a trial that fits instead."""
     import tempfile
 
     from ray import tune
@@ -46,6 +52,11 @@ def run_trial(config: dict[str, Any]) -> None:
     c = config
     if _finished(c):
         return  # e.g. committed logs on a fresh machine, whose checkpoints are not in git
+    if c.get("deadline") is not None and c.get("cost_per_step") is not None:
+        resumed = max((resume_steps(d) for d in _trial_runs(c)), default=0)
+        need, left = (c["steps"] - resumed) * c["cost_per_step"], c["deadline"] - time.time()
+        if need > left:
+            raise Paused(f"not started: about {need / 60:.0f} min of work, {max(left, 0) / 60:.0f} min to the deadline")
     every = c["eval_every"]
     target = every
     while True:
@@ -91,11 +102,16 @@ def run_trial(config: dict[str, Any]) -> None:
         target += every
 
 
+def _trial_runs(c: dict[str, Any]) -> list[Path]:
+    """The trial's run directory under its own output root, whatever the task directory's name
+    (none before the run has started)."""
+    return sorted(Path(c["out"]).glob(f"*/{c['method']}/seed{c['seed']}"))
+
+
 def _finished(c: dict[str, Any]) -> bool:
-    """Whether the trial's run already has all its env steps (its ``summary.json``, under the
-    trial's own output root, whatever the task directory's name): such a trial returns at once,
-    without its checkpoint (not committed) and past any deadline."""
-    return any(run_steps(d) >= c["steps"] for d in Path(c["out"]).glob(f"*/{c['method']}/seed{c['seed']}"))
+    """Whether the trial's run already has all its env steps (its ``summary.json``): such a
+    trial returns at once, without its checkpoint (not committed) and past any deadline."""
+    return any(run_steps(d) >= c["steps"] for d in _trial_runs(c))
 
 
 def _run_sb3(c: dict[str, Any], steps: int) -> Path:
