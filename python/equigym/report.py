@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from equigym.steer.runs import run_summary
+
 LABELS = {
     "dsrl": "DSRL",
     "equi": "Equi-DSRL",
@@ -38,14 +40,9 @@ def load_runs(root: str | Path | list[str | Path]) -> dict[tuple[str, str], list
             with open(log) as f:
                 rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f)]
             method = f"rust-{meta['method']}" if meta.get("agent") == "rust" else meta["method"]
-            summary = log.parent / "summary.json"
             if rows:
                 runs[(log.parents[2].name, method)].append(
-                    {
-                        "meta": meta,
-                        "rows": rows,
-                        "summary": json.loads(summary.read_text()) if summary.exists() else None,
-                    }
+                    {"meta": meta, "rows": rows, "summary": run_summary(log.parent) or None}
                 )
     return runs
 
