@@ -517,8 +517,10 @@ def cost(cells: dict[str, dict[str, Any]], root: Path) -> list[str]:
             done = [r["summary"] for r in rs if r["summary"]]
             if not done:
                 continue
-            by = [s.get("seconds_by_activity") or {} for s in done]
-            parts = " / ".join(f"{sum(b.get(k, 0.0) for b in by) / len(by):.0f}" for k in ("rollout", "train", "eval"))
+            by = [s["seconds_by_activity"] for s in done if s.get("seconds_by_activity")]
+            # the SB3 runner's clock is not split by activity
+            activities = ("rollout", "train", "eval")
+            parts = " / ".join(f"{sum(b.get(k, 0.0) for b in by) / len(by):.0f}" for k in activities) if by else "-"
             minutes = sum(s["seconds"] for s in done) / len(done) / 60
             lines.append(f"| {name} | {m} | {len(done)} | {done[0]['env_steps']:,} | {parts} | {minutes:.1f} |")
     lines += [
