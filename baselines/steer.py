@@ -43,6 +43,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 import equigym  # noqa: F401  (registers the ids)
 from baselines.agents import EQUI_INITS, EquiSACPolicy, LayerNormSACPolicy, count_parameters
 from equigym import _core
+from equigym.latent import shipped_policy
 from equigym.steer import add_run_arguments
 from equigym.wrappers import TerminateOnSuccess
 
@@ -349,9 +350,15 @@ def run(
     model, make = build(method, task, preset, seed, joint_limits, policy_file, terminate_on_success)
     chunk = 1 if method == "sac" else 4
     meta = {
+        "agent": "sb3",
         "method": method,
         "task": task,
         "seed": seed,
+        # the EDP and the evaluation protocol, as the Rust runner records them: the control arms
+        # (equigym.steer.controls) are evaluated from these
+        "policy": str(policy_file) if policy_file else str(shipped_policy(task)),
+        "eval_every": eval_every,
+        "eval_episodes": eval_episodes,
         "preset": preset,
         "steps": steps,
         "joint_limits": joint_limits,

@@ -12,7 +12,7 @@ pytest.importorskip("stable_baselines3")
 
 from baselines import steer  # noqa: E402
 from equigym.report import write_report  # noqa: E402
-from equigym.steer import resume_steps, run_steps  # noqa: E402
+from equigym.steer import controls, read_run, resume_steps, run_steps  # noqa: E402
 
 TINY = {"name": "tiny", "width": 16, "layers": 1, "utd": 1, "batch": 16, "n_envs": 2, "warmup": 8, "ent_init": 1.0}
 
@@ -34,6 +34,8 @@ def test_run_logs_resumes_and_reports(method, tmp_path):
     assert (run_dir / "checkpoint" / "model.zip").exists() and (run_dir / "checkpoint" / "replay.pkl").exists()
     # The Rust runner's layout: summary.json says how far the run got, and equigym.steer reads it
     assert run_steps(run_dir) == 64 and resume_steps(run_dir) == 64
+    # and its run.json names what the control arms are evaluated from (EDP, episodes), as the Rust one does
+    assert controls(read_run(run_dir)["meta"], [0], compute=False) == {1.0: [], 0.5: [], 0.0: []}
     meta = json.loads((run_dir / "run.json").read_text())
     assert meta["method"] == method and meta["params_actor"] > 0
     # "Killed" after 64 steps; asking for 128 continues from the checkpoint, replay buffer included.

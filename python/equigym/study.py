@@ -374,7 +374,7 @@ def run_controls(cells: list[Cell], root: Path, threads: int) -> None:
 
     for cell in cells:
         dirs = _run_dirs(cell, root)
-        if not dirs or cell.agent != "rust":
+        if not dirs:
             continue
         metas = [json.loads((d / "run.json").read_text()) for d in dirs]
         seeds = sorted({int(m["seed"]) for m in metas})
