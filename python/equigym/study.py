@@ -441,12 +441,17 @@ def run(a: argparse.Namespace) -> None:
         before_fit=settings_written,
     )
     paused = [r for r in results if r.error is not None and "Paused" in repr(r.error)]
+    deferred = [r for r in paused if "not started" in repr(r.error)]  # --whole-runs: would not finish
     failed = [r for r in results if r.error is not None and r not in paused]
     run_controls(cells, root, a.cpus or 1)
     wall = time.time() - started
     entry = {"wall_seconds": round(wall, 1), "trials": len(results), "paused": len(paused), "failed": len(failed)}
+    entry |= {"not_started": len(deferred)} if a.whole_runs else {}
     record_invocation(record, entry, start=False)
-    print(f"{len(results)} trials, {len(paused)} paused at the deadline, {len(failed)} failed, {wall:.0f} s wall")
+    print(
+        f"{len(results)} trials, {len(paused) - len(deferred)} paused at the deadline, {len(deferred)} not started "
+        f"(would not finish by it), {len(failed)} failed, {wall:.0f} s wall"
+    )
     if failed:
         raise SystemExit(f"{len(failed)} trials failed; run the same command again to resume")
 
