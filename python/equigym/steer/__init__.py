@@ -1,29 +1,6 @@
 """Steering agents in Rust (DSRL, Equi-DSRL, Approx-Equi-DSRL): one run, a sweep on Ray Tune,
-and a report next to the SB3 baselines.
-
-    python -m equigym.steer run --method equi --task lift --seed 0 --steps 16000 --out runs/steer-rust
-    python -m equigym.steer sweep --methods dsrl equi approx --tasks lift --seeds 0 1 2 3 4 --steps 16000 \\
-        --out runs/sweep [--sb3 dsrl equi approx --sb3-seeds 0 1 2] [--cpus 2] [--address ray://host:10001] [--resume]
-    python -m equigym.steer report --runs runs/sweep/rust [--sb3-runs runs/steer] --out docs/steering/rust
-    python -m equigym.steer compare RUN_DIR ... --out docs/steering/x/compare.md   # with controls and intervals
-    python -m equigym.steer screen --task stack --grid target_entropy=5,10,20 prior_kl=4 --steps 60000 \
-        --eval-every 10000 --eval-episodes 100 --out runs/screen [--cpus 2] [--resume]   # ASHA early stopping
-
-``run`` trains in-process in Rust (the GIL is released) and writes
-``<out>/<task>/<method>/seed<S>/log.csv`` (``env_steps, success_rate, mean_q, seconds``, as the
-SB3 runs), ``run.json``, ``summary.json`` (with a hash of the final weights) and
-``checkpoint.bin``. Started again with the same arguments it resumes from the checkpoint and
-ends bit for bit where an uninterrupted run ends; a larger ``--steps`` extends a finished run.
-Results do not depend on ``--threads``.
-
-``sweep`` runs methods x tasks x seeds as Ray Tune trials (``pip install 'equigym[sweep]'``):
-local Ray by default, ``--address`` joins a cluster. Each trial advances its run one evaluation
-interval at a time (each call resumes the agent's own checkpoint, so this changes nothing in the
-results) and reports to Tune after each; ``--resume`` restores an interrupted sweep with
-``Tuner.restore``. ``screen`` runs every combination of ``--grid``'s run options x seeds on one
-method and task under Ray Tune's ASHA scheduler, which stops the trials whose recent success
-falls behind (:func:`screen`). ``--sb3`` adds the SB3 + escnn baselines (``python -m baselines.steer run``, needs the
-``train`` extra), written under ``<out>/sb3``; the Rust runs go under ``<out>/rust``.
+and a report next to the SB3 baselines; the command line is ``python -m equigym.steer``
+(:mod:`~equigym.steer.cli`, whose docs list its commands).
 
 The package has one module per concern: :mod:`~equigym.steer.runs` (one run, the run options and
 recipes, and the readers of a run directory), :mod:`~equigym.steer.trials` (the runs as Ray
