@@ -24,8 +24,8 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from baselines import steer
-from equigym.report import LABELS, load_runs, mean_se, write_report
 from equigym.steer import RECIPES
+from equigym.steer.sweep_report import LABELS, load_runs, mean_se, write_report
 
 
 def summary(out: Path, task: str, methods: list[str], base: float) -> str:

@@ -417,7 +417,7 @@ def main(argv: list[str] | None = None) -> None:
     r.add_argument("--out", default="docs/steering")
     a = p.parse_args(argv)
     if a.cmd == "report":
-        from equigym.report import write_report
+        from equigym.steer.sweep_report import write_report
 
         print(write_report(a.runs, a.out))
     elif a.cmd == "base":

@@ -28,7 +28,7 @@ done
 PYTHONPATH=. $PY - "$DOCS" "$RUST" <<'PYEOF'
 import csv, sys
 from pathlib import Path
-from equigym.report import mean_se
+from equigym.steer.sweep_report import mean_se
 
 docs, rust = Path(sys.argv[1]), Path(sys.argv[2])
 

@@ -11,8 +11,8 @@ pytest.importorskip("escnn")
 pytest.importorskip("stable_baselines3")
 
 from baselines import steer  # noqa: E402
-from equigym.report import write_report  # noqa: E402
 from equigym.steer import controls, read_run, resume_steps, run_steps  # noqa: E402
+from equigym.steer.sweep_report import write_report  # noqa: E402
 
 TINY = {"name": "tiny", "width": 16, "layers": 1, "utd": 1, "batch": 16, "n_envs": 2, "warmup": 8, "ent_init": 1.0}
 

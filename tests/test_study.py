@@ -12,7 +12,8 @@ import shutil
 
 import pytest
 
-from equigym import _core, study, study_report
+from equigym import _core, study
+from equigym.study import report as study_report
 
 
 def test_a_cell_two_parts_need_is_run_once_and_jobs_are_seed_major():
@@ -26,8 +27,8 @@ def test_a_cell_two_parts_need_is_run_once_and_jobs_are_seed_major():
     assert [(j["cell"], j["seed"]) for j in jobs[:3]] == [("lift", 0), ("lift-cartesian-nolimits", 0), ("lift", 1)]
     assert sum(j["cell"] == "lift" for j in jobs) == 5 and sum(j["cell"] != "lift" for j in jobs) == 3
     utd = study.cells_of(["critic"])[1]
-    config = study._trial_config(utd, study.jobs([utd])[0], study.ROOT)
-    assert config["utd"] == 30 and "utd" not in study._trial_config(cells[0], jobs[0], study.ROOT)
+    config = study.trial_config(utd, study.jobs([utd])[0], study.ROOT)
+    assert config["utd"] == 30 and "utd" not in study.trial_config(cells[0], jobs[0], study.ROOT)
     quick = study.cells_of(["dial"], quick=True)
     assert all(c.steps == 64 and c.seeds == (0,) for c in quick)
 

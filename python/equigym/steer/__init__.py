@@ -6,8 +6,8 @@ The package has one module per concern: :mod:`~equigym.steer.runs` (one run, the
 recipes, and the readers of a run directory), :mod:`~equigym.steer.trials` (the runs as Ray
 Tune trials: sweep, screen, and the experiment plumbing the study shares),
 :mod:`~equigym.steer.analysis` (headline figures, diagnostics and the comparison with the control
-arms) and :mod:`~equigym.steer.cli` (the command line). Their public names are re-exported
-here.
+arms), :mod:`~equigym.steer.sweep_report` (a sweep's Table 1 and plots, SB3 runs beside them)
+and :mod:`~equigym.steer.cli` (the command line). Their public names are re-exported here.
 """
 
 from equigym.steer.analysis import (

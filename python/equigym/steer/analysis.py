@@ -14,11 +14,11 @@ from typing import Any
 
 from equigym import _core
 from equigym.steer.runs import RUN_OPTIONS, VALUED_OPTIONS, read_run, run_env
+from equigym.steer.sweep_report import write_report
 
 
 def report(a: argparse.Namespace) -> str:
-    from equigym.report import write_report
-
+    """``python -m equigym.steer report``: Table 1 and plots of a sweep (:mod:`~equigym.steer.sweep_report`)."""
     roots = [a.runs] + ([a.sb3_runs] if a.sb3_runs else [])
     text = write_report(roots, a.out)
     print(text)

@@ -129,7 +129,7 @@ def write_report(root: str | Path | list[str | Path], out: str | Path, base: dic
     lines = [
         "# Steering results",
         "",
-        f"From `{', '.join(str(r) for r in _roots(root))}` by `equigym.report` (`python -m equigym.steer report` or `python -m baselines.steer report`). Success rates of the "
+        f"From `{', '.join(str(r) for r in _roots(root))}` by `equigym.steer.sweep_report` (`python -m equigym.steer report` or `python -m baselines.steer report`). Success rates of the "
         "stochastic steering policy, each evaluation >= 50 episodes unless the runs said otherwise; mean +- standard "
         "error over seeds. The base policy column is the EDP alone (latent noise N(0, I), 100 episodes).",
         "",
