@@ -135,13 +135,15 @@ def test_the_claims_read_gains_and_q_by_the_two_standard_error_rule():
         },
     }
     square = {**empty["square"], "controls": base, "runs": {"equi": [run(0, 0.40, [-1.0])]}}
-    lines = "\n".join(study_report.claims({**empty, "lift": lift, "square": square}))
+    sb3 = {**empty["lift-sb3"], "runs": {"dsrl": [run(0, 0.5, [-0.5, 40.0, 30.0])]}}  # DSRL's protocol, SB3
+    lines = "\n".join(study_report.claims({**empty, "lift": lift, "square": square, "lift-sb3": sb3}))
     assert "| Lift | -0.050 (1) | 0.100 +- 0.012 (3) up | 0.000 +- 0.058 (3) none | improved by Equi-DSRL |" in lines
     assert "| Stack D1 | - | - | - | not run yet |" in lines
     assert "| Square D2 | - | -0.100 (1) | - | too few seeds yet |" in lines
     # highest and final mean Q over seeds: (0.5 - 2 - 3) / 3, one run above 0
     assert "| Lift | Equi-DSRL | 1 of 3 | -1.5 +- 1.0 (3) | -1.5 +- 1.0 (3) |" in lines
     assert "| Lift | Approx-Equi-DSRL | 0 of 3 |" in lines
+    assert "| Lift, SB3 + escnn, DSRL's protocol | DSRL | 1 of 1 | 40.0 (1) | 30.0 (1) |" in lines
     assert "| Lift | 0.036 | 0.100 +- 0.064 (3) | none | 0.100 +- 0.012 (3) | 0.000 +- 0.058 (3) |" in lines
 
 
