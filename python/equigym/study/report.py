@@ -83,7 +83,7 @@ def load_cell(cell: Cell, root: Path) -> dict[str, Any]:
         rs.sort(key=lambda r: r["seed"])
     ctl: dict[float, dict[int, dict[str, Any]]] = {}
     cache = cell.out(root) / "controls.json"
-    if meta is not None and cell.agent == "rust" and cache.exists():
+    if meta is not None and cache.exists():
         got = controls(meta, list(cell.seeds), CONTROL_SCALES, cache, compute=False)
         ctl = {s: {e["seed"]: e for e in evals} for s, evals in got.items()}
     return {"cell": cell, "runs": runs, "controls": ctl}
