@@ -25,7 +25,8 @@ from pathlib import Path
 
 from baselines import steer
 from equigym.steer import RECIPES
-from equigym.steer.sweep_report import LABELS, load_runs, mean_se, write_report
+from equigym.steer.stats import format_mean_se
+from equigym.steer.sweep_report import LABELS, load_runs, write_report
 
 
 def summary(out: Path, task: str, methods: list[str], base: float) -> str:
@@ -41,7 +42,7 @@ def summary(out: Path, task: str, methods: list[str], base: float) -> str:
         for what, values in (("final", finals), ("peak", peaks)):
             seeds = ", ".join(f"{v:.2f}" for v in values)
             runs_said = f"{len(values)} seeds: {seeds}" if len(values) > 1 else "1 run"
-            rows.append(f"{LABELS[key] + ' ' + what:30s} {mean_se(values, 2):>12s}   ({runs_said})")
+            rows.append(f"{LABELS[key] + ' ' + what:30s} {format_mean_se(values, 2):>12s}   ({runs_said})")
     return "\n".join(rows)
 
 

@@ -28,7 +28,7 @@ done
 PYTHONPATH=. $PY - "$DOCS" "$RUST" <<'PYEOF'
 import csv, sys
 from pathlib import Path
-from equigym.steer.sweep_report import mean_se
+from equigym.steer.stats import format_mean_se
 
 docs, rust = Path(sys.argv[1]), Path(sys.argv[2])
 
@@ -54,7 +54,7 @@ lines = [
 ]
 for name, runs in rows:
     v = [first(r) for r in runs]
-    lines.append(f"| {name} | {len(v)} | {mean_se(v, 3)} | {', '.join(f'{x:.2f}' for x in v)} |")
+    lines.append(f"| {name} | {len(v)} | {format_mean_se(v, 3)} | {', '.join(f'{x:.2f}' for x in v)} |")
 (docs / "table.md").write_text("\n".join(lines) + "\n")
 print("\n".join(lines))
 PYEOF

@@ -96,3 +96,25 @@ def test_the_sb3_runner_reads_the_presets_from_their_rust_home():
     assert steer.PRESETS["paper"]["utd_square"] == 20 and steer.PRESETS["paper"]["width"] == 2048
     with pytest.raises(InvalidInputError, match="preset must be"):
         _core.steer_preset("gpu")
+
+
+def test_stats_share_one_statistic_and_one_text_form():
+    """mean +- s.e. is numpy's sample standard deviation over sqrt(n), in every table's one text
+    form; a pooled rate carries a Wilson interval around it."""
+    import numpy as np
+
+    from equigym.steer.stats import format_mean_se, format_pooled, mean_se
+
+    xs = [0.25, 0.5, 0.75, 0.9]
+    m, se = mean_se(xs)
+    assert m == pytest.approx(np.mean(xs))
+    assert se == pytest.approx(np.std(xs, ddof=1) / np.sqrt(len(xs)))
+    assert format_mean_se(xs) == f"{np.mean(xs):.3f} +- {se:.3f}"
+    assert format_mean_se(xs, 1, count=True) == f"{m:.1f} +- {se:.1f} (4)"
+    assert format_mean_se([0.5]) == "0.500"
+    assert format_mean_se([]) == "-"
+    text = format_pooled(30, 60)
+    low, high = (float(x) for x in text.split("[")[1].rstrip("]").split(", "))
+    assert text.startswith("30/60 = 0.500 [") and low < 0.5 < high and high - low < 0.3
+    assert format_pooled(30, 60, counts=False) == text.removeprefix("30/60 = ")
+    assert format_pooled(0, 0) == "-"

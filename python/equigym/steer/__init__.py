@@ -6,7 +6,8 @@ The package has one module per concern: :mod:`~equigym.steer.runs` (one run, the
 recipes, and the readers of a run directory), :mod:`~equigym.steer.trials` (the runs as Ray
 Tune trials: sweep, screen, and the experiment plumbing the study shares),
 :mod:`~equigym.steer.analysis` (headline figures, diagnostics and the comparison with the control
-arms), :mod:`~equigym.steer.sweep_report` (a sweep's Table 1 and plots, SB3 runs beside them)
+arms), :mod:`~equigym.steer.sweep_report` (a sweep's Table 1 and plots, SB3 runs beside them),
+:mod:`~equigym.steer.stats` (mean +- s.e. and Wilson intervals, as numbers and as table text)
 and :mod:`~equigym.steer.cli` (the command line). Their public names are re-exported here.
 """
 
@@ -16,7 +17,6 @@ from equigym.steer.analysis import (
     compare,
     controls,
     diagnose,
-    mean_se,
     report,
     summarize,
     trained_rows,
@@ -36,6 +36,7 @@ from equigym.steer.runs import (
     run_steps,
     run_summary,
 )
+from equigym.steer.stats import format_mean_se, format_pooled, mean_se
 from equigym.steer.trials import (
     Paused,
     config_label,
@@ -65,6 +66,8 @@ __all__ = [
     "config_label",
     "controls",
     "diagnose",
+    "format_mean_se",
+    "format_pooled",
     "main",
     "mean_se",
     "parse_grid",

@@ -14,6 +14,7 @@ from typing import Any
 
 from equigym import _core
 from equigym.steer.runs import RUN_OPTIONS, VALUED_OPTIONS, read_run, run_env
+from equigym.steer.stats import format_mean_se, format_pooled
 from equigym.steer.sweep_report import write_report
 
 
@@ -116,28 +117,6 @@ def _label(meta: dict[str, Any]) -> str:
     return meta["method"] + (f" ({', '.join(opts)})" if opts else "")
 
 
-def _pooled(successes: int, n: int) -> str:
-    low, high = _core.wilson(successes, n)
-    return f"{successes}/{n} = {successes / n:.3f} [{low:.3f}, {high:.3f}]" if n else "-"
-
-
-def mean_se(xs: list[float]) -> tuple[float, float]:
-    """Mean and standard error of ``xs`` (nan where there are too few values)."""
-    if not xs:
-        return math.nan, math.nan
-    m = sum(xs) / len(xs)
-    if len(xs) < 2:
-        return m, math.nan
-    return m, math.sqrt(sum((x - m) ** 2 for x in xs) / (len(xs) - 1) / len(xs))
-
-
-def _mean_se(xs: list[float]) -> str:
-    m, se = mean_se(xs)
-    if math.isnan(m):
-        return "-"
-    return f"{m:.3f}" if math.isnan(se) else f"{m:.3f} +- {se:.3f}"
-
-
 def controls(
     meta: dict[str, Any],
     seeds: list[int],
@@ -225,7 +204,7 @@ def compare(
             rates = [e["success_rate"] for e in evals]
             wins, total = sum(e["successes"] for e in evals), sum(e["episodes"] for e in evals)
             per = ", ".join(f"{x:.2f}" for x in rates)
-            lines.append(f"| {name} | {len(evals)} | {per} | {_mean_se(rates)} | {_pooled(wins, total)} |")
+            lines.append(f"| {name} | {len(evals)} | {per} | {format_mean_se(rates)} | {format_pooled(wins, total)} |")
         for g in members:
             rs = sorted(groups[g], key=lambda r: r["meta"]["seed"])
             for what in ("untrained actor", "final", "peak after training starts"):
@@ -242,8 +221,8 @@ def compare(
                 steps = max(int(r["log"][-1]["env_steps"]) for r in rs)
                 name = f"{g[2]}, {what}" + (f" ({steps:,} env steps)" if what == "final" else "")
                 per = ", ".join(f"{x:.2f}" for x in per_seed)
-                pooled = _pooled(wins, total) if total else "-"
-                lines.append(f"| {name} | {len(rs)} | {per} | {_mean_se(per_seed)} | {pooled} |")
+                pooled = format_pooled(wins, total)
+                lines.append(f"| {name} | {len(rs)} | {per} | {format_mean_se(per_seed)} | {pooled} |")
         lines.append("")
     text = "\n".join(lines)
     if out:

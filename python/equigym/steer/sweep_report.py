@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from equigym.steer.runs import run_summary
+from equigym.steer.stats import format_mean_se
 
 LABELS = {
     "dsrl": "DSRL",
@@ -90,13 +91,6 @@ def _cost_table(runs: dict, tasks: list[str], methods: list[str], labels: dict[s
     ]
 
 
-def mean_se(values: list[float], digits: int) -> str:
-    """``mean +- s.e.`` over seeds (sample standard deviation / sqrt(n)); one value alone."""
-    if len(values) == 1:
-        return f"{values[0]:.{digits}f}"
-    return f"{np.mean(values):.{digits}f} +- {np.std(values, ddof=1) / np.sqrt(len(values)):.{digits}f}"
-
-
 def _task_table(
     tasks: list[str], columns: list[str], lead: dict[str, Callable[[str], str]], cell: Callable[[str, int], str]
 ) -> list[str]:
@@ -136,7 +130,7 @@ def write_report(root: str | Path | list[str | Path], out: str | Path, base: dic
     ]
 
     def cell(values: list[float]) -> str:
-        return mean_se(values, 3)
+        return format_mean_se(values, 3)
 
     # Peak over evaluations is the paper's Table 1 metric; with few noisy evaluations it is biased
     # upwards, so the mean of each run's last two evaluations is reported beside it.

@@ -31,26 +31,17 @@ import os
 from pathlib import Path
 from typing import Any
 
-from equigym import _core
 from equigym.steer import (
     CONTROL_SCALES,
     FINAL_EVALUATIONS,
     controls,
-    mean_se,
     read_run,
     run_summary,
     summarize,
     trained_rows,
 )
+from equigym.steer.stats import format_mean_se, format_pooled, mean_se
 from equigym.study.cells import CELLS, LABELS, PAPER, PARTS, ROOT, TASK_LABELS, Cell, budget, run_dirs
-
-
-def _fmt(xs: list[float], digits: int = 3, n: bool = True) -> str:
-    m, se = mean_se(xs)
-    if math.isnan(m):
-        return "-"
-    text = f"{m:.{digits}f}" + ("" if math.isnan(se) else f" +- {se:.{digits}f}")
-    return text + (f" ({len(xs)})" if n else "")
 
 
 def load_cell(cell: Cell, root: Path) -> dict[str, Any]:
@@ -113,12 +104,9 @@ def gains(data: dict[str, Any], method: str) -> list[float]:
     ]
 
 
-def _pooled(runs: list[dict[str, Any]]) -> str:
-    wins, n = sum(r["final_wins"] for r in runs), sum(r["final_n"] for r in runs)
-    if not n:
-        return "-"
-    low, high = _core.wilson(wins, n)
-    return f"{wins / n:.3f} [{low:.3f}, {high:.3f}]"
+def _pooled_final(runs: list[dict[str, Any]]) -> str:
+    """The runs' final evaluations pooled, with a Wilson interval."""
+    return format_pooled(sum(r["final_wins"] for r in runs), sum(r["final_n"] for r in runs), counts=False)
 
 
 def expected_peak(p: float, n: int, k: int) -> float:
@@ -190,13 +178,13 @@ def table1(cells: dict[str, dict[str, Any]]) -> list[str]:
             scale, narrow = _best_narrow(d)
             row = [
                 f"{TASK_LABELS[task]} ({d['cell'].steps:,} steps)",
-                f"{_fmt(_control_rates(d, 1.0))} [{PAPER[task]['base']:.3f}]",
-                *([_fmt(base_peaks(d))] if peak else []),
-                f"{_fmt(narrow)}" + (f" (s = {scale:g})" if scale is not None else ""),
+                f"{format_mean_se(_control_rates(d, 1.0), count=True)} [{PAPER[task]['base']:.3f}]",
+                *([format_mean_se(base_peaks(d), count=True)] if peak else []),
+                f"{format_mean_se(narrow, count=True)}" + (f" (s = {scale:g})" if scale is not None else ""),
             ]
             for m in LABELS:
                 xs = [r["figures"][figure] for r in d["runs"].get(m, []) if not math.isnan(r["figures"][figure])]
-                row.append(_fmt(xs) + (f" [{PAPER[task][m]:.3f}]" if figure == "peak" else ""))
+                row.append(format_mean_se(xs, count=True) + (f" [{PAPER[task][m]:.3f}]" if figure == "peak" else ""))
             lines.append("| " + " | ".join(row) + " |")
         lines.append("")
     lines += [
@@ -212,9 +200,11 @@ def table1(cells: dict[str, dict[str, Any]]) -> list[str]:
         for m, label in LABELS.items():
             rs = d["runs"].get(m, [])
             steps = ", ".join(sorted({f"{r['steps']:,}" for r in rs})) or "-"
+            untrained = [r["figures"]["untrained"] for r in rs]
+            trends = [x for x in map(trend, rs) if not math.isnan(x)]
+            cols = [format_mean_se(xs, count=True) for xs in (untrained, gains(d, m), trends)]
             lines.append(
-                f"| {TASK_LABELS[d['cell'].task]} | {label} | {_fmt([r['figures']['untrained'] for r in rs])} | "
-                f"{_pooled(rs)} | {_fmt(gains(d, m))} | {_fmt([x for x in map(trend, rs) if not math.isnan(x)])} | "
+                f"| {TASK_LABELS[d['cell'].task]} | {label} | {cols[0]} | {_pooled_final(rs)} | {cols[1]} | {cols[2]} | "
                 f"{steps} |"
             )
     return lines + [""]
@@ -235,12 +225,12 @@ def comparison(cells: dict[str, dict[str, Any]], names: tuple[str, ...], title: 
         scale, narrow = _best_narrow(d)
         row = [
             f"{d['cell'].label} ({d['cell'].steps // 1000}k steps)",
-            _fmt(_control_rates(d, 1.0)),
-            _fmt(narrow) + (f" (s = {scale:g})" if scale else ""),
+            format_mean_se(_control_rates(d, 1.0), count=True),
+            format_mean_se(narrow, count=True) + (f" (s = {scale:g})" if scale else ""),
         ]
         for m in LABELS:
             finals = [r["figures"]["final"] for r in d["runs"].get(m, [])]
-            row.append(f"{_fmt(finals)} / {_fmt(gains(d, m), n=False)}" if finals else "-")
+            row.append(f"{format_mean_se(finals, count=True)} / {format_mean_se(gains(d, m))}" if finals else "-")
         lines.append("| " + " | ".join(row) + " |")
     return lines + [""]
 
@@ -276,8 +266,8 @@ def dial(cells: dict[str, dict[str, Any]]) -> tuple[list[str], list[dict[str, An
         row += (
             [f"{b['replay_failure']:.3f}", f"{b['hand_error_mm']:.2f}", f"{b['unreachable']:.3f}"] if b else ["-"] * 3
         )
-        row.append(_fmt(_control_rates(d, 1.0)))
-        row += [_fmt(gains(d, m)) for m in LABELS]
+        row.append(format_mean_se(_control_rates(d, 1.0), count=True))
+        row += [format_mean_se(gains(d, m), count=True) for m in LABELS]
         lines.append("| " + " | ".join(row) + " |")
         points.append({"cell": d["cell"], "breaking": b, "gains": {m: gains(d, m) for m in LABELS}})
     return lines + [""], points
@@ -295,7 +285,7 @@ def _verdict(xs: list[float]) -> str:
 def _read(xs: list[float]) -> str:
     """``xs`` as mean +- s.e. (seeds) with its :func:`_verdict` where there are enough seeds."""
     v = _verdict(xs)
-    return _fmt(xs) + ("" if v == "-" else f" {v}")
+    return format_mean_se(xs, count=True) + ("" if v == "-" else f" {v}")
 
 
 def _paired(data: dict[str, Any], a: str, b: str) -> list[float]:
@@ -370,7 +360,8 @@ def claims(cells: dict[str, dict[str, Any]]) -> list[str]:
             above = sum(1 for q in qs if max(q) > 0)
             lines.append(
                 f"| {d['cell'].label} | {label} | {above} of {len(qs)} | "
-                f"{_fmt([max(q) for q in qs], 1)} | {_fmt([q[-1] for q in qs], 1)} |"
+                f"{format_mean_se([max(q) for q in qs], 1, count=True)} | "
+                f"{format_mean_se([q[-1] for q in qs], 1, count=True)} |"
             )
     lines += [
         "",
@@ -387,8 +378,9 @@ def claims(cells: dict[str, dict[str, Any]]) -> list[str]:
         b = None if d["breaking"] is None else d["breaking"]["replay_failure"]
         diff = _paired(d, "equi", "approx")
         lines.append(
-            f"| {d['cell'].label} | {'-' if b is None else f'{b:.3f}'} | {_fmt(diff)} | {_verdict(diff)} | "
-            f"{_fmt(gains(d, 'equi'))} | {_fmt(gains(d, 'approx'))} |"
+            f"| {d['cell'].label} | {'-' if b is None else f'{b:.3f}'} | {format_mean_se(diff, count=True)} | "
+            f"{_verdict(diff)} | "
+            f"{format_mean_se(gains(d, 'equi'), count=True)} | {format_mean_se(gains(d, 'approx'), count=True)} |"
         )
     return lines + [""]
 
