@@ -7,11 +7,13 @@ from __future__ import annotations
 import csv
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from equigym import _core, steer
+from equigym.steer import run_env
 
 torch = pytest.importorskip("torch")
 
@@ -311,3 +313,27 @@ def test_main_job_refuses_a_rust_only_recipe_for_the_sb3_agents(tmp_path):
     with pytest.raises(SystemExit):
         headline.main(["--agents", "sb3", "--recipe", "na-tos-h20", "--out", str(tmp_path)])
     assert not any(tmp_path.iterdir()), "nothing ran"
+
+
+def test_a_run_on_the_fourier_kernel_says_so_and_its_controls_run_on_it(tmp_path):
+    """``edp_kernel="fourier"``: run.json records it (a dense run's says nothing, as before), a
+    checkpoint of one kernel never resumes on the other, and the run's control arms evaluate the
+    base on the run's kernel (their cache keyed by it)."""
+    dense = steer.run("dsrl", "stack", 0, 64, tmp_path, **SHORT)
+    run_dir = Path(dense["run_dir"])
+    assert "edp_kernel" not in json.loads((run_dir / "run.json").read_text())
+    with pytest.raises(ValueError, match="checkpoint"):
+        steer.run("dsrl", "stack", 0, 128, tmp_path, edp_kernel="fourier", **SHORT)
+    with pytest.raises(ValueError, match="kernel must be"):
+        steer.run("dsrl", "stack", 0, 64, tmp_path / "x", edp_kernel="fft", **SHORT)
+    fourier = steer.run("dsrl", "stack", 0, 64, tmp_path / "f", edp_kernel="fourier", **SHORT)
+    meta = json.loads((Path(fourier["run_dir"]) / "run.json").read_text())
+    assert meta["edp_kernel"] == "fourier"
+    meta = {**meta, "eval_episodes": 2}
+    cache = tmp_path / "controls.json"
+    got = steer.controls(meta, [0], (1.0,), cache)[1.0][0]
+    want = _core.evaluate_base(
+        "stack", seed=0, episodes=2, policy=meta["policy"], edp_kernel="fourier", env=run_env(meta)
+    )
+    assert got == want
+    assert all('"edp_kernel": "fourier"' in key for key in json.loads(cache.read_text()))

@@ -29,6 +29,9 @@ def test_a_cell_two_parts_need_is_run_once_and_jobs_are_seed_major():
     utd = study.cells_of(["critic"])[1]
     config = study.trial_config(utd, study.jobs([utd])[0], study.ROOT)
     assert config["utd"] == 30 and "utd" not in study.trial_config(cells[0], jobs[0], study.ROOT)
+    square = study.CELLS["square"]
+    assert study.trial_config(square, study.jobs([square])[0], study.ROOT)["edp_kernel"] == "fourier"
+    assert "edp_kernel" not in study.trial_config(cells[0], jobs[0], study.ROOT)
     quick = study.cells_of(["dial"], quick=True)
     assert all(c.steps == 64 and c.seeds == (0,) for c in quick)
 
@@ -164,17 +167,20 @@ def test_whole_runs_needs_a_deadline():
 def test_the_plan_counts_what_each_run_still_lacks(tmp_path):
     cell = study.CELLS["square"]
 
-    def summary(method, seed, steps, checkpoint=False):
+    def summary(method, seed, steps, checkpoint=False, kernel=cell.edp_kernel, per_step=0.1):
         d = cell.out(tmp_path) / cell.task / method / f"seed{seed}"
         d.mkdir(parents=True)
         (d / "log.csv").write_text("env_steps,success_rate,mean_q,seconds\n")
-        (d / "summary.json").write_text(json.dumps({"env_steps": steps, "seconds": 0.1 * steps}))
+        (d / "summary.json").write_text(json.dumps({"env_steps": steps, "seconds": per_step * steps}))
+        (d / "run.json").write_text(json.dumps({} if kernel == "dense" else {"edp_kernel": kernel}))
         if checkpoint:
             (d / "checkpoint.bin").write_bytes(b"")
 
+    assert cell.edp_kernel == "fourier"
     summary("dsrl", 0, cell.steps // 4, checkpoint=True)  # a quarter of the way, resumable here
     summary("approx", 0, cell.steps // 2)  # half-way on a machine that kept its checkpoint: starts over
     summary("equi", 0, cell.steps)  # finished
+    summary("equi", 1, cell.steps // 8, kernel="dense", per_step=0.5)  # the other kernel's clock does not count
     [b] = study.budget([cell], tmp_path)
     runs = len(cell.methods) * len(cell.seeds)
     assert b["done"] == 1 and b["runs"] == runs

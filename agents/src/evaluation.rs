@@ -19,7 +19,7 @@ use std::sync::Arc;
 
 use equigym_wrappers::latent::LatentBatchEnv;
 use equigym_wrappers::steerability::Rate;
-use equigym_wrappers::{DiffusionPolicy, DEFAULT_LATENT_BOUND};
+use equigym_wrappers::DEFAULT_LATENT_BOUND;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
@@ -157,7 +157,7 @@ pub fn evaluate_base(cfg: &RunConfig, scale: f64) -> Result<BaseEvaluation> {
         )));
     }
     let path = cfg.policy_path();
-    let policy = Arc::new(DiffusionPolicy::load(&path)?);
+    let policy = Arc::new(cfg.load_policy()?);
     let episodes = cfg.eval_episodes;
     let latent_dim = policy.action_dim();
     let mut rngs: Vec<Rng> = (0..episodes as u64).map(|k| Rng::new(cfg.seed, Stream::BaseEval, k)).collect();

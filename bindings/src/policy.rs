@@ -5,6 +5,7 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
+use equigym_wrappers::edp::Kernel;
 use equigym_wrappers::DiffusionPolicy as RustPolicy;
 use numpy::ndarray::Array3;
 use numpy::{IntoPyArray, PyArray3, PyReadonlyArrayDyn, PyUntypedArrayMethods};
@@ -22,12 +23,19 @@ pub struct DiffusionPolicy {
     origin: String,
 }
 
+/// `"dense"` or `"fourier"` as the runtime's kernel.
+fn kernel(name: &str) -> PyResult<Kernel> {
+    name.parse().map_err(to_py)
+}
+
 #[pymethods]
 impl DiffusionPolicy {
-    /// Load from a file path, or from the bytes of a policy file (`origin` names it in errors).
+    /// Load from a file path, or from the bytes of a policy file (`origin` names it in errors);
+    /// `kernel` runs the regular-to-regular layers dense (default) or in the Fourier basis.
     #[new]
-    #[pyo3(signature = (source, origin=None))]
-    fn new(source: &Bound<'_, PyAny>, origin: Option<String>) -> PyResult<Self> {
+    #[pyo3(signature = (source, origin=None, kernel="dense"))]
+    fn new(source: &Bound<'_, PyAny>, origin: Option<String>, kernel: &str) -> PyResult<Self> {
+        let kernel = self::kernel(kernel)?;
         let (bytes, origin) = match source.cast::<PyBytes>() {
             Ok(b) => (b.as_bytes().to_vec(), origin.unwrap_or_else(|| "<bytes>".into())),
             Err(_) => {
@@ -35,12 +43,23 @@ impl DiffusionPolicy {
                 (RustPolicy::read_file(&path).map_err(to_py)?, origin.unwrap_or_else(|| path.display().to_string()))
             }
         };
-        let inner = RustPolicy::from_bytes(&bytes, &origin).map_err(to_py)?;
+        let mut inner = RustPolicy::from_bytes(&bytes, &origin).map_err(to_py)?;
+        inner.kernel = kernel;
         Ok(Self { inner: Arc::new(inner), bytes: Arc::new(bytes), origin })
     }
-    /// Pickling: the file's bytes and its name.
-    fn __getnewargs__<'py>(&self, py: Python<'py>) -> (Bound<'py, PyBytes>, String) {
-        (PyBytes::new(py, &self.bytes), self.origin.clone())
+    /// Pickling: the file's bytes, its name and the kernel.
+    fn __getnewargs__<'py>(&self, py: Python<'py>) -> (Bound<'py, PyBytes>, String, &'static str) {
+        (PyBytes::new(py, &self.bytes), self.origin.clone(), self.inner.kernel.as_str())
+    }
+    /// `"dense"` or `"fourier"`.
+    #[getter]
+    fn kernel(&self) -> &'static str {
+        self.inner.kernel.as_str()
+    }
+    /// The layers the Fourier kernel runs in the Fourier basis (the regular-to-regular ones).
+    #[getter]
+    fn fourier_layers(&self) -> Vec<usize> {
+        self.inner.fourier_layers()
     }
     #[getter]
     fn task(&self) -> &str {
@@ -108,7 +127,7 @@ impl DiffusionPolicy {
 pub(crate) fn policy_object(py: Python<'_>, policy: &Bound<'_, PyAny>) -> PyResult<Py<DiffusionPolicy>> {
     match policy.cast::<DiffusionPolicy>() {
         Ok(p) => Ok(p.clone().unbind()),
-        Err(_) => Py::new(py, DiffusionPolicy::new(policy, None)?),
+        Err(_) => Py::new(py, DiffusionPolicy::new(policy, None, "dense")?),
     }
 }
 

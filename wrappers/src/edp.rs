@@ -13,10 +13,26 @@
 //! summed in one fixed order, so it is bit for bit the same whatever the batch size, the row
 //! split across threads or the CPU's vector width (see the `equigym-nn` docs). The DDIM update
 //! and the (de)normalisation stay in float64.
+//!
+//! # The Fourier kernel
+//!
+//! A C8 EDP's hidden layers map regular fields to regular fields, so each 8 x 8 block of their
+//! exported matrices is circulant, and in the Fourier (irrep) basis the layer is block-diagonal
+//! by frequency: 14 instead of 64 multiply-adds per field pair
+//! ([`equigym_nn::fourier::Circulant`], the kernel the agents' equivariant layers run on). On
+//! loading, every layer whose blocks are circulant (to float32 rounding: the file stores the
+//! escnn expansion rounded to float32) and whose bias is constant over each field gets a Fourier
+//! copy, its coefficients projected from the dense matrix; [`Kernel::Fourier`] runs those
+//! layers in that basis, the others (the input and output layers, every layer of a plain EDP)
+//! dense. It is the same map up to float rounding, not the same bits: the dense kernel stays
+//! the default, so that every recorded rollout replays, and a steering run records which one it
+//! used. Like the dense one it sums every row in a fixed order, so its results do not depend on
+//! the batch either.
 
 use std::path::Path;
 
 use equigym_envs::Layout;
+use equigym_nn::fourier::{dft_matrix, Circulant, ORDER};
 use equigym_nn::{gemm, ops, Real, Trans};
 use safetensors::{Dtype, SafeTensors};
 
@@ -49,6 +65,113 @@ impl std::str::FromStr for Precision {
     }
 }
 
+/// Which kernel runs the layers that have a Fourier copy (see the module docs).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Kernel {
+    /// Every layer as a dense matrix product (the default: the recorded rollouts' bits).
+    #[default]
+    Dense,
+    /// Regular-to-regular layers in the Fourier basis (4.6x fewer multiply-adds there).
+    Fourier,
+}
+
+impl Kernel {
+    /// The name [`Kernel::from_str`](std::str::FromStr) reads.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Kernel::Dense => "dense",
+            Kernel::Fourier => "fourier",
+        }
+    }
+}
+
+impl std::str::FromStr for Kernel {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "dense" => Ok(Kernel::Dense),
+            "fourier" => Ok(Kernel::Fourier),
+            other => Err(equigym_envs::EnvError::InvalidConfig(format!(
+                "kernel must be 'dense' or 'fourier', got '{other}'"
+            ))
+            .into()),
+        }
+    }
+}
+
+/// Largest deviation from a circulant block (relative to the layer's largest weight) that still
+/// counts as one: the file's float32 rounding of the escnn expansion is about 1e-7.
+const CIRCULANT_TOLERANCE: f64 = 1e-5;
+
+/// A layer's Fourier copy: the kernel and its parameters (coefficients, then one bias per
+/// output field), in both precisions.
+#[derive(Debug)]
+struct FourierLayer {
+    c32: Circulant<f32>,
+    p32: Vec<f32>,
+    c64: Circulant<f64>,
+    p64: Vec<f64>,
+}
+
+impl FourierLayer {
+    /// The Fourier copy of a layer (`weight` n_out x n_in, row-major), or `None` where its
+    /// blocks are not circulant or its bias is not constant over each field.
+    fn of(weight: &[f64], bias: &[f64], n_out: usize, n_in: usize) -> Option<Self> {
+        if !n_out.is_multiple_of(ORDER) || !n_in.is_multiple_of(ORDER) || n_out == 0 || n_in == 0 {
+            return None;
+        }
+        let (fo, fi) = (n_out / ORDER, n_in / ORDER);
+        let tol = CIRCULANT_TOLERANCE * weight.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        if bias.chunks_exact(ORDER).any(|f| f.iter().any(|v| (v - f[0]).abs() > tol)) {
+            return None;
+        }
+        let t = dft_matrix();
+        let n = fi * fo;
+        let mut params = vec![0.0; Circulant::<f64>::num_weights(fi, fo) + fo];
+        for o in 0..fo {
+            for i in 0..fi {
+                let d = |a: usize, b: usize| weight[(o * ORDER + a) * n_in + i * ORDER + b];
+                // G = T D T^T; a circulant block is diagonal in it but for a rotation-scaling
+                // [[A, -B], [B, A]] per 2-d irrep (rows 2 + 2j: re, 3 + 2j: im).
+                let g = |p: usize, q: usize| -> f64 {
+                    (0..ORDER).map(|a| t[p][a] * (0..ORDER).map(|b| d(a, b) * t[q][b]).sum::<f64>()).sum()
+                };
+                let mut gd = [[0.0; ORDER]; ORDER];
+                gd[0][0] = g(0, 0);
+                gd[1][1] = g(1, 1);
+                params[i * fo + o] = gd[0][0];
+                params[n + i * fo + o] = gd[1][1];
+                for j in 0..3 {
+                    let (re, im) = (2 + 2 * j, 3 + 2 * j);
+                    let (a, b) = (g(re, re), g(im, re));
+                    (gd[re][re], gd[im][im], gd[im][re], gd[re][im]) = (a, a, b, -b);
+                    params[(2 + 2 * j) * n + i * fo + o] = a;
+                    params[(3 + 2 * j) * n + i * fo + o] = b;
+                }
+                // The block must be what its coefficients give back: D = T^T G T.
+                for a in 0..ORDER {
+                    for b in 0..ORDER {
+                        let back: f64 =
+                            (0..ORDER).map(|p| t[p][a] * (0..ORDER).map(|q| gd[p][q] * t[q][b]).sum::<f64>()).sum();
+                        if (back - d(a, b)).abs() > tol {
+                            return None;
+                        }
+                    }
+                }
+            }
+        }
+        let nw = params.len() - fo;
+        for o in 0..fo {
+            params[nw + o] = bias[o * ORDER];
+        }
+        let mut c64 = Circulant::new(fi, fo, 0, nw);
+        c64.expand(&params);
+        let p32: Vec<f32> = params.iter().map(|v| *v as f32).collect();
+        let c32 = c64.cast(&p32);
+        Some(Self { c32, p32, c64, p64: params })
+    }
+}
+
 #[derive(Debug)]
 struct Dense {
     /// Row-major (in, out): the layout `x W` reads, in both precisions.
@@ -69,6 +192,8 @@ const MAX_CHUNK_LEN: usize = 4096;
 #[derive(Debug)]
 pub struct DiffusionPolicy {
     layers: Vec<Dense>,
+    /// Each layer's Fourier copy, where it has one (see the module docs).
+    fourier: Vec<Option<FourierLayer>>,
     alphas_cumprod: Vec<f64>,
     time_embedding: Vec<f64>,
     time_dim: usize,
@@ -84,6 +209,8 @@ pub struct DiffusionPolicy {
     pub metadata: std::collections::HashMap<String, String>,
     /// Arithmetic of [`DiffusionPolicy::sample`] (set before sharing the policy).
     pub precision: Precision,
+    /// Kernel of [`DiffusionPolicy::sample`] (set before sharing the policy).
+    pub kernel: Kernel,
 }
 
 fn bad(path: &str, reason: impl Into<String>) -> Error {
@@ -163,6 +290,8 @@ impl DiffusionPolicy {
             ));
         }
         let mut layers = Vec::with_capacity(num_layers);
+        let mut fourier = Vec::with_capacity(num_layers);
+        let equivariant = metadata.get("group").is_some_and(|g| g == "C8");
         for i in 0..num_layers {
             let shape = shape_of(&st, origin, &format!("layer{i}.weight"))?;
             if shape.len() != 2 {
@@ -176,6 +305,7 @@ impl DiffusionPolicy {
             }
             let weight = tensor(&st, origin, &format!("layer{i}.weight"), &[n_out, n_in])?;
             let bias = tensor(&st, origin, &format!("layer{i}.bias"), &[n_out])?;
+            fourier.push(if equivariant { FourierLayer::of(&weight, &bias, n_out, n_in) } else { None });
             let mut wt64 = vec![0.0; n_in * n_out];
             equigym_nn::gemm::transpose(n_out, n_in, &weight, &mut wt64);
             layers.push(Dense {
@@ -213,12 +343,14 @@ impl DiffusionPolicy {
             action_offset: tensor(&st, origin, "action_offset", &[action_dim])?,
             action_scale: tensor(&st, origin, "action_scale", &[action_dim])?,
             layers,
+            fourier,
             task,
             chunk_len,
             default_ddim_steps,
             group: metadata.get("group").cloned().unwrap_or_default(),
             metadata,
             precision: Precision::default(),
+            kernel: Kernel::default(),
         };
         if policy.obs_scale.iter().chain(&policy.action_scale).any(|s| *s <= 0.0) {
             return Err(bad(origin, "normalisation scales must be positive"));
@@ -259,6 +391,10 @@ impl DiffusionPolicy {
 
     pub fn obs_dim(&self) -> usize {
         self.obs_offset.len()
+    }
+    /// The layers that have a Fourier copy, which [`Kernel::Fourier`] runs in that basis.
+    pub fn fourier_layers(&self) -> Vec<usize> {
+        (0..self.fourier.len()).filter(|&i| self.fourier[i].is_some()).collect()
     }
     /// Dimension of a chunk (and of the latent noise).
     pub fn action_dim(&self) -> usize {
@@ -343,9 +479,24 @@ impl DiffusionPolicy {
                 row[od..od + ad].copy_from_slice(&x[r * ad..(r + 1) * ad]);
                 row[od + ad..].copy_from_slice(emb);
             }
+            let fourier = self.kernel == Kernel::Fourier;
             match precision {
-                Precision::F32 => self.forward(&input, b, &mut eps, &mut s32, |l| (&l.wt32, &l.bias32)),
-                Precision::F64 => self.forward(&input, b, &mut eps, &mut s64, |l| (&l.wt64, &l.bias64)),
+                Precision::F32 => self.forward(
+                    &input,
+                    b,
+                    &mut eps,
+                    &mut s32,
+                    |l| (&l.wt32, &l.bias32),
+                    |i| self.fourier[i].as_ref().filter(|_| fourier).map(|f| (&f.c32, &f.p32)),
+                ),
+                Precision::F64 => self.forward(
+                    &input,
+                    b,
+                    &mut eps,
+                    &mut s64,
+                    |l| (&l.wt64, &l.bias64),
+                    |i| self.fourier[i].as_ref().filter(|_| fourier).map(|f| (&f.c64, &f.p64)),
+                ),
             }
             let (sa, s1a) = (ab.sqrt(), (1.0 - ab).sqrt());
             let (sp, s1p) = (ab_prev.sqrt(), (1.0 - ab_prev).sqrt());
@@ -362,26 +513,32 @@ impl DiffusionPolicy {
         Ok(())
     }
 
-    /// The MLP on a batch of `rows` inputs (row-major), ReLU between layers, in `T`; every
+    /// The MLP on a batch of `rows` inputs (row-major), ReLU between layers, in `T`: layer `i`
+    /// in the Fourier basis where `fourier(i)` gives its copy, else dense (`params`). Every
     /// output is summed in one fixed order ([`equigym_nn::gemm`]), so a row's result does not
     /// depend on the batch it is in.
-    fn forward<T: Real>(
-        &self,
+    fn forward<'a, T: Real>(
+        &'a self,
         input: &[f64],
         rows: usize,
         out: &mut [f64],
         s: &mut Scratch<T>,
-        params: impl Fn(&Dense) -> (&Vec<T>, &Vec<T>),
+        params: impl Fn(&'a Dense) -> (&'a Vec<T>, &'a Vec<T>),
+        fourier: impl Fn(usize) -> Option<(&'a Circulant<T>, &'a Vec<T>)>,
     ) {
         let (a, b) = (&mut s.a, &mut s.b);
         a.clear();
         a.extend(input.iter().map(|v| T::from_f64(*v)));
         let last = self.layers.len() - 1;
         for (i, l) in self.layers.iter().enumerate() {
-            let (wt, bias) = params(l);
-            ops::resize_for_overwrite(b, rows * l.n_out);
-            ops::fill_bias(b, bias);
-            gemm(rows, l.n_out, l.n_in, a, Trans::N, wt, b, true);
+            if let Some((c, p)) = fourier(i) {
+                c.forward(p, a, rows, b, &mut s.xhat, &mut s.yhat);
+            } else {
+                let (wt, bias) = params(l);
+                ops::resize_for_overwrite(b, rows * l.n_out);
+                ops::fill_bias(b, bias);
+                gemm(rows, l.n_out, l.n_in, a, Trans::N, wt, b, true);
+            }
             if i < last {
                 ops::relu(b);
             }
@@ -398,4 +555,7 @@ impl DiffusionPolicy {
 struct Scratch<T> {
     a: Vec<T>,
     b: Vec<T>,
+    /// The Fourier kernel's blocks of a layer's input and output.
+    xhat: Vec<T>,
+    yhat: Vec<T>,
 }

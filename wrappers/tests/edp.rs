@@ -3,7 +3,7 @@
 use std::collections::HashMap;
 
 use equigym_envs::{Env, EnvConfig};
-use equigym_wrappers::edp::Precision;
+use equigym_wrappers::edp::{Kernel, Precision};
 use equigym_wrappers::latent::{latent_batch, LatentEnv};
 use equigym_wrappers::{DiffusionPolicy, Error};
 use safetensors::tensor::TensorView;
@@ -216,4 +216,43 @@ fn latent_vector_env_equals_single_envs_for_any_thread_count() {
         batch.step(&latents(9)).unwrap();
         assert!((0..n).all(|k| batch.was_reset(k).unwrap()));
     }
+}
+
+/// The shipped C8 policies' hidden layers (regular fields to regular fields) get Fourier copies,
+/// and the Fourier kernel computes the dense kernel's map: in float64 the two agree to the
+/// file's float32 rounding of the circulant blocks, and in float32 the Fourier kernel is as
+/// close to the float64 chunks as the dense one is; every row's bits are independent of the
+/// batch. A plain policy has no copy.
+#[test]
+fn the_fourier_kernel_is_the_dense_map() {
+    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../assets/edp");
+    let max_diff = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+    for task in ["lift", "stack", "square"] {
+        let mut p = DiffusionPolicy::load(format!("{dir}/{task}.safetensors")).unwrap();
+        assert_eq!(p.fourier_layers(), vec![1, 2], "{task}");
+        let (od, ad, b) = (p.obs_dim(), p.action_dim(), 24);
+        let obs: Vec<f64> = (0..b * od).map(|i| 0.1 * libm::sin(i as f64 * 0.37)).collect();
+        let latent: Vec<f64> = (0..b * ad).map(|i| 1.3 * libm::cos(i as f64 * 0.61)).collect();
+        let mut chunks = |precision, kernel| {
+            (p.precision, p.kernel) = (precision, kernel);
+            let mut out = vec![0.0; b * ad];
+            p.sample(&obs, &latent, p.default_ddim_steps, &mut out).unwrap();
+            let mut one = vec![0.0; ad];
+            p.sample(&obs[5 * od..6 * od], &latent[5 * ad..6 * ad], p.default_ddim_steps, &mut one).unwrap();
+            assert_eq!(one, out[5 * ad..6 * ad], "{task} {precision:?} {kernel:?}: a row's bits depend on its batch");
+            out
+        };
+        let reference = chunks(Precision::F64, Kernel::Dense);
+        let fourier64 = chunks(Precision::F64, Kernel::Fourier);
+        let (dense32, fourier32) = (chunks(Precision::F32, Kernel::Dense), chunks(Precision::F32, Kernel::Fourier));
+        let (d64, e_dense, e_fourier) =
+            (max_diff(&reference, &fourier64), max_diff(&reference, &dense32), max_diff(&reference, &fourier32));
+        assert!(d64 < 1e-5, "{task}: the float64 kernels differ by {d64}");
+        assert!(e_fourier < 2.0 * e_dense + 1e-5, "{task}: float32 errors {e_fourier} (Fourier) against {e_dense}");
+        assert!(dense32 != fourier32, "{task}: the float32 kernels should round differently");
+    }
+    let plain = DiffusionPolicy::from_bytes(&random_policy(), "random").unwrap();
+    assert!(plain.fourier_layers().is_empty());
+    assert_eq!("fourier".parse::<Kernel>().unwrap(), Kernel::Fourier);
+    assert!(matches!("fft".parse::<Kernel>(), Err(Error::Env(_))));
 }

@@ -4,6 +4,7 @@
 //! reports; the layout of the committed runs).
 
 use equigym_envs::{Controller, EnvOptions};
+use equigym_wrappers::edp::Kernel;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
@@ -114,6 +115,7 @@ impl Runner {
             controller: cfg.env.controller.map(Controller::name),
             horizon: cfg.env.horizon,
             env: cfg.other_env_options(),
+            edp_kernel: (cfg.edp_kernel != Kernel::Dense).then_some(cfg.edp_kernel.as_str()),
         };
         write_atomic(&dir.join("run.json"), meta.to_json().as_bytes())
     }
@@ -178,6 +180,9 @@ struct RunMeta<'a> {
     /// The other environment options, where any differs from the default.
     #[serde(skip_serializing_if = "Option::is_none")]
     env: Option<EnvOptions>,
+    /// The EDP's kernel, where not the dense default.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    edp_kernel: Option<&'a str>,
 }
 
 fn is_false(b: &bool) -> bool {
@@ -240,6 +245,7 @@ mod tests {
             controller: None,
             horizon: None,
             env: None,
+            edp_kernel: None,
         }
     }
 
@@ -256,5 +262,7 @@ mod tests {
             recipe.to_json(),
             include_str!("../../../docs/steering/arm3/recipe/edp16k-na-tos-h40-dsrl-seed0/run.json")
         );
+        recipe.edp_kernel = Some("fourier");
+        assert!(recipe.to_json().trim_end().ends_with(r#", "edp_kernel": "fourier"}"#), "{}", recipe.to_json());
     }
 }

@@ -155,7 +155,7 @@ pub struct TimeSplit {
 impl Runner {
     /// A fresh run of `cfg`: its environments, nets, replay and streams (nothing stepped or reset).
     fn new(cfg: &RunConfig) -> Result<Self> {
-        let policy = Arc::new(DiffusionPolicy::load(cfg.policy_path())?);
+        let policy = Arc::new(cfg.load_policy()?);
         let envs = make_batch(cfg, &policy, cfg.preset.n_envs)?;
         let first = envs.env(0).ok_or_else(|| Error::InvalidOption("a run needs at least one environment".into()))?;
         let sym = TaskSymmetry::for_env(first.env(), Group::cyclic(GROUP_ORDER)?, policy.chunk_len)?;

@@ -109,7 +109,8 @@ CONTROL_SCALES = (1.0, 0.5, 0.0)
 
 
 def _option_labels(meta: dict[str, Any]) -> list[str]:
-    return [f"{k}={meta[k]}" if k in VALUED_OPTIONS else k for k in RUN_OPTIONS if k in meta]
+    labels = [f"{k}={meta[k]}" if k in VALUED_OPTIONS else k for k in RUN_OPTIONS if k in meta]
+    return labels + ([f"edp_kernel={meta['edp_kernel']}"] if "edp_kernel" in meta else [])
 
 
 def _label(meta: dict[str, Any]) -> str:
@@ -140,6 +141,7 @@ def controls(
         "variant": meta.get("variant"),
         # keys of runs with further options only, so that committed caches keep their keys
         **({"env": meta["env"]} if meta.get("env") else {}),
+        **({"edp_kernel": meta["edp_kernel"]} if meta.get("edp_kernel") else {}),
     }
     out: dict[float, list[dict[str, Any]]] = {}
     for scale in scales:
@@ -151,6 +153,8 @@ def controls(
                 continue
             if key not in known:
                 kw = {"policy": settings["policy"], "episodes": settings["episodes"]}
+                if "edp_kernel" in settings:
+                    kw["edp_kernel"] = settings["edp_kernel"]
                 known[key] = _core.evaluate_base(
                     meta["task"], seed=seed, scale=scale, threads=threads, env=run_env(meta), **kw
                 )

@@ -38,6 +38,10 @@ DEFAULT_EVAL = {"eval_every": 2000, "eval_episodes": 50}
 #: The run options that ``run.json`` records when set: switches, then options with a value.
 RUN_OPTIONS = ("terminate_on_success", "noise_aliased", "target_entropy", "prior_kl", "reward_scale", "select", "utd")
 VALUED_OPTIONS = ("target_entropy", "prior_kl", "reward_scale", "select", "utd")
+#: How the EDP's regular-to-regular layers run (``_core.DiffusionPolicy``'s ``kernel``): the
+#: first is the default, which ``run.json`` leaves out; a run that sets another records it as
+#: ``edp_kernel``.
+EDP_KERNELS = ("dense", "fourier")
 COUNT_OPTIONS = ("select", "utd")
 
 
@@ -65,8 +69,8 @@ def run(
 
     ``options`` are ``equigym._core.steer_run``'s keyword options, typed in its stub (threads,
     preset, env (the environments' keyword arguments as a dict), eval_every, eval_episodes,
-    ent_init, utd, terminate_on_success, noise_aliased, target_entropy, prior_kl, reward_scale, select,
-    progress);
+    edp_kernel, ent_init, utd, terminate_on_success, noise_aliased, target_entropy, prior_kl, reward_scale,
+    select, progress);
     an unknown name is a ``TypeError``. ``policy`` defaults to the task's shipped EDP and
     ``progress`` to True."""
     options.setdefault("progress", True)

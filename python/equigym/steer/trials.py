@@ -21,6 +21,7 @@ from typing import Any
 
 from equigym.steer.runs import (
     COUNT_OPTIONS,
+    EDP_KERNELS,
     RUN_OPTIONS,
     VALUED_OPTIONS,
     env_options,
@@ -76,6 +77,7 @@ def run_trial(config: dict[str, Any]) -> None:
                 eval_every=every,
                 eval_episodes=c["eval_episodes"],
                 policy=c["policy"],
+                edp_kernel=c.get("edp_kernel", EDP_KERNELS[0]),
                 ent_init=c["ent_init"],
                 progress=False,
                 **{k: c[k] for k in RUN_OPTIONS if k in c},

@@ -29,9 +29,11 @@ LABELS = {"dsrl": "DSRL", "equi": "Equi-DSRL", "approx": "Approx-Equi-DSRL"}
 TASK_LABELS = {"lift": "Lift", "stack": "Stack D1", "square": "Square D2"}
 #: Core-seconds per primitive env step of one run, where the study has no run of the cell's
 #: task and agent to measure it from (measured, one run per core, evaluations included: the
-#: Lift recipe runs of docs/steering/arm3, the study's own Stack D1 and Square D2 runs with the
-#: noise-aliased recipe, whose gradient steps decode the EDP; the SB3 figure is an estimate).
-DEFAULT_COST = {("lift", "rust"): 0.020, ("stack", "rust"): 0.060, ("square", "rust"): 0.21, ("lift", "sb3"): 0.08}
+#: Lift recipe runs of docs/steering/arm3, the study's own Stack D1 runs with the noise-aliased
+#: recipe, whose gradient steps decode the EDP; Square D2 on the Fourier kernel from an 8k-step
+#: run of the recipe, its 4,000 gradient steps at 0.038 s against the dense kernel's 0.24 in the
+#: study's first Square runs, with training extrapolated to 32k; the SB3 figure is an estimate).
+DEFAULT_COST = {("lift", "rust"): 0.020, ("stack", "rust"): 0.060, ("square", "rust"): 0.05, ("lift", "sb3"): 0.08}
 #: For a cell with its own UTD and no finished run to measure: the share of a run's time spent
 #: training at the cpu preset's UTD (the Lift runs' cost table in the report), scaled by the
 #: ratio of the UTDs.
@@ -67,6 +69,9 @@ class Cell:
     dial: float | None = None
     #: Gradient steps per transition where the cell sets its own (default: the preset's).
     utd: int | None = None
+    #: How the EDP's regular-to-regular layers run (``equigym.steer.EDP_KERNELS``; the runs and
+    #: their control arms alike).
+    edp_kernel: str = "dense"
 
     def policy_path(self) -> str:
         return self.policy or f"assets/edp/{self.task}.safetensors"
@@ -97,7 +102,9 @@ CELLS: dict[str, Cell] = {
     for c in (
         Cell("lift", "lift", "Lift", LIFT_STEPS, 2_000, dial=1.0),
         Cell("stack", "stack", "Stack D1", 32_000, 4_000),
-        Cell("square", "square", "Square D2", 32_000, 4_000),
+        # Square D2's EDP (hidden width 1024) decodes 5x faster on the Fourier kernel, and its
+        # decodes are most of a run; no Square run had finished on the dense one.
+        Cell("square", "square", "Square D2", 32_000, 4_000, edp_kernel="fourier"),
         # The SB3 + escnn agents know DSRL's own protocol only: the cross-check runs it on both.
         Cell("lift-dsrl", "lift", "Lift, Rust, DSRL's protocol", 16_000, 2_000, seeds=ABLATION_SEEDS, recipe="dsrl"),
         Cell(
@@ -203,12 +210,14 @@ def run_dirs(cell: Cell, root: Path) -> list[Path]:
 
 def cost_per_step(root: Path) -> dict[tuple[str, str, int | None], float]:
     """Core-seconds per env step by (task, agent, the cell's own UTD): the study's own finished
-    runs where it has them (their clocks, one run per CPU), else :data:`DEFAULT_COST`."""
+    runs where it has them (their clocks, one run per CPU; only runs on the cell's EDP kernel),
+    else :data:`DEFAULT_COST`."""
     seen: dict[tuple[str, str, int | None], list[float]] = {}
     for cell in CELLS.values():
         for d in run_dirs(cell, root):
             summary = run_summary(d)
-            if summary.get("env_steps"):
+            meta = json.loads((d / "run.json").read_text()) if (d / "run.json").exists() else {}
+            if summary.get("env_steps") and meta.get("edp_kernel", "dense") == cell.edp_kernel:
                 key = (cell.task, cell.agent, cell.utd)
                 seen.setdefault(key, []).append(summary["seconds"] / summary["env_steps"])
     return {**{(*k, None): v for k, v in DEFAULT_COST.items()}, **{k: sum(v) / len(v) for k, v in seen.items()}}
