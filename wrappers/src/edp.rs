@@ -19,17 +19,19 @@
 //! A C8 EDP's hidden layers map regular fields to regular fields, so each 8 x 8 block of their
 //! exported matrices is circulant, and in the Fourier (irrep) basis the layer is block-diagonal
 //! by frequency: 14 instead of 64 multiply-adds per field pair
-//! ([`equigym_nn::fourier::Circulant`], the kernel the agents' equivariant layers run on). On
-//! loading, every layer whose blocks are circulant (to float32 rounding: the file stores the
-//! escnn expansion rounded to float32) and whose bias is constant over each field gets a Fourier
-//! copy, its coefficients projected from the dense matrix; [`Kernel::Fourier`] runs those
-//! layers in that basis, the others (the input and output layers, every layer of a plain EDP)
-//! dense. It is the same map up to float rounding, not the same bits: the dense kernel stays
+//! ([`equigym_nn::fourier::Circulant`], the kernel the agents' equivariant layers run on). The
+//! first time a policy needs them (its first sample on [`Kernel::Fourier`]), every layer whose
+//! blocks are circulant (to float32 rounding: the file stores the escnn expansion rounded to
+//! float32) and whose bias is constant over each field gets a Fourier copy, its coefficients
+//! projected from the dense matrix; the Fourier kernel runs those layers in that basis, the
+//! others (the input and output layers, every layer of a plain EDP) dense. A policy that only
+//! ever runs dense pays nothing for them, at load or in memory. It is the same map up to float rounding, not the same bits: the dense kernel stays
 //! the default, so that every recorded rollout replays, and a steering run records which one it
 //! used. Like the dense one it sums every row in a fixed order, so its results do not depend on
 //! the batch either.
 
 use std::path::Path;
+use std::sync::OnceLock;
 
 use equigym_envs::Layout;
 use equigym_nn::fourier::{dft_matrix, Circulant, ORDER};
@@ -114,9 +116,10 @@ struct FourierLayer {
 }
 
 impl FourierLayer {
-    /// The Fourier copy of a layer (`weight` n_out x n_in, row-major), or `None` where its
-    /// blocks are not circulant or its bias is not constant over each field.
-    fn of(weight: &[f64], bias: &[f64], n_out: usize, n_in: usize) -> Option<Self> {
+    /// The Fourier copy of a dense layer, or `None` where its blocks are not circulant or its
+    /// bias is not constant over each field.
+    fn of(layer: &Dense) -> Option<Self> {
+        let (n_in, n_out, weight, bias) = (layer.n_in, layer.n_out, &layer.wt64, &layer.bias64);
         if !n_out.is_multiple_of(ORDER) || !n_in.is_multiple_of(ORDER) || n_out == 0 || n_in == 0 {
             return None;
         }
@@ -130,7 +133,9 @@ impl FourierLayer {
         let mut params = vec![0.0; Circulant::<f64>::num_weights(fi, fo) + fo];
         for o in 0..fo {
             for i in 0..fi {
-                let d = |a: usize, b: usize| weight[(o * ORDER + a) * n_in + i * ORDER + b];
+                // Block (o, i) of the layer's matrix, D[a][b] from input i * 8 + b to output
+                // o * 8 + a; the dense copy is stored (in, out).
+                let d = |a: usize, b: usize| weight[(i * ORDER + b) * n_out + o * ORDER + a];
                 // G = T D T^T; a circulant block is diagonal in it but for a rotation-scaling
                 // [[A, -B], [B, A]] per 2-d irrep (rows 2 + 2j: re, 3 + 2j: im).
                 let g = |p: usize, q: usize| -> f64 {
@@ -172,6 +177,30 @@ impl FourierLayer {
     }
 }
 
+/// The float type a sampling call runs in, with its copy of each layer's parameters.
+trait Arith: Real {
+    fn dense(l: &Dense) -> (&[Self], &[Self]);
+    fn fourier(f: &FourierLayer) -> (&Circulant<Self>, &[Self]);
+}
+
+impl Arith for f32 {
+    fn dense(l: &Dense) -> (&[f32], &[f32]) {
+        (&l.wt32, &l.bias32)
+    }
+    fn fourier(f: &FourierLayer) -> (&Circulant<f32>, &[f32]) {
+        (&f.c32, &f.p32)
+    }
+}
+
+impl Arith for f64 {
+    fn dense(l: &Dense) -> (&[f64], &[f64]) {
+        (&l.wt64, &l.bias64)
+    }
+    fn fourier(f: &FourierLayer) -> (&Circulant<f64>, &[f64]) {
+        (&f.c64, &f.p64)
+    }
+}
+
 #[derive(Debug)]
 struct Dense {
     /// Row-major (in, out): the layout `x W` reads, in both precisions.
@@ -192,8 +221,8 @@ const MAX_CHUNK_LEN: usize = 4096;
 #[derive(Debug)]
 pub struct DiffusionPolicy {
     layers: Vec<Dense>,
-    /// Each layer's Fourier copy, where it has one (see the module docs).
-    fourier: Vec<Option<FourierLayer>>,
+    /// Each layer's Fourier copy, where it has one, made on first use (see the module docs).
+    fourier: OnceLock<Vec<Option<FourierLayer>>>,
     alphas_cumprod: Vec<f64>,
     time_embedding: Vec<f64>,
     time_dim: usize,
@@ -290,8 +319,6 @@ impl DiffusionPolicy {
             ));
         }
         let mut layers = Vec::with_capacity(num_layers);
-        let mut fourier = Vec::with_capacity(num_layers);
-        let equivariant = metadata.get("group").is_some_and(|g| g == "C8");
         for i in 0..num_layers {
             let shape = shape_of(&st, origin, &format!("layer{i}.weight"))?;
             if shape.len() != 2 {
@@ -305,7 +332,6 @@ impl DiffusionPolicy {
             }
             let weight = tensor(&st, origin, &format!("layer{i}.weight"), &[n_out, n_in])?;
             let bias = tensor(&st, origin, &format!("layer{i}.bias"), &[n_out])?;
-            fourier.push(if equivariant { FourierLayer::of(&weight, &bias, n_out, n_in) } else { None });
             let mut wt64 = vec![0.0; n_in * n_out];
             equigym_nn::gemm::transpose(n_out, n_in, &weight, &mut wt64);
             layers.push(Dense {
@@ -343,7 +369,7 @@ impl DiffusionPolicy {
             action_offset: tensor(&st, origin, "action_offset", &[action_dim])?,
             action_scale: tensor(&st, origin, "action_scale", &[action_dim])?,
             layers,
-            fourier,
+            fourier: OnceLock::new(),
             task,
             chunk_len,
             default_ddim_steps,
@@ -394,7 +420,17 @@ impl DiffusionPolicy {
     }
     /// The layers that have a Fourier copy, which [`Kernel::Fourier`] runs in that basis.
     pub fn fourier_layers(&self) -> Vec<usize> {
-        (0..self.fourier.len()).filter(|&i| self.fourier[i].is_some()).collect()
+        let copies = self.fourier_copies();
+        (0..copies.len()).filter(|&i| copies[i].is_some()).collect()
+    }
+
+    /// Every layer's Fourier copy or `None`, made the first time they are asked for (a C8
+    /// policy's; a policy of another group has none).
+    fn fourier_copies(&self) -> &[Option<FourierLayer>] {
+        self.fourier.get_or_init(|| {
+            let equivariant = self.group == "C8";
+            self.layers.iter().map(|l| if equivariant { FourierLayer::of(l) } else { None }).collect()
+        })
     }
     /// Dimension of a chunk (and of the latent noise).
     pub fn action_dim(&self) -> usize {
@@ -470,6 +506,7 @@ impl DiffusionPolicy {
         let mut s32 = Scratch::<f32>::default();
         let mut s64 = Scratch::<f64>::default();
         let ts = self.ddim_timesteps(steps);
+        let copies = (self.kernel == Kernel::Fourier).then(|| self.fourier_copies());
         for (k, &t) in ts.iter().enumerate() {
             let ab = self.alphas_cumprod[t];
             let ab_prev = ts.get(k + 1).map_or(1.0, |&p| self.alphas_cumprod[p]);
@@ -479,24 +516,9 @@ impl DiffusionPolicy {
                 row[od..od + ad].copy_from_slice(&x[r * ad..(r + 1) * ad]);
                 row[od + ad..].copy_from_slice(emb);
             }
-            let fourier = self.kernel == Kernel::Fourier;
             match precision {
-                Precision::F32 => self.forward(
-                    &input,
-                    b,
-                    &mut eps,
-                    &mut s32,
-                    |l| (&l.wt32, &l.bias32),
-                    |i| self.fourier[i].as_ref().filter(|_| fourier).map(|f| (&f.c32, &f.p32)),
-                ),
-                Precision::F64 => self.forward(
-                    &input,
-                    b,
-                    &mut eps,
-                    &mut s64,
-                    |l| (&l.wt64, &l.bias64),
-                    |i| self.fourier[i].as_ref().filter(|_| fourier).map(|f| (&f.c64, &f.p64)),
-                ),
+                Precision::F32 => self.forward(&input, b, &mut eps, &mut s32, copies),
+                Precision::F64 => self.forward(&input, b, &mut eps, &mut s64, copies),
             }
             let (sa, s1a) = (ab.sqrt(), (1.0 - ab).sqrt());
             let (sp, s1p) = (ab_prev.sqrt(), (1.0 - ab_prev).sqrt());
@@ -513,28 +535,28 @@ impl DiffusionPolicy {
         Ok(())
     }
 
-    /// The MLP on a batch of `rows` inputs (row-major), ReLU between layers, in `T`: layer `i`
-    /// in the Fourier basis where `fourier(i)` gives its copy, else dense (`params`). Every
+    /// The MLP on a batch of `rows` inputs (row-major), ReLU between layers, in `T`: each layer
+    /// in the Fourier basis where `copies` (the Fourier kernel's) has one, else dense. Every
     /// output is summed in one fixed order ([`equigym_nn::gemm`]), so a row's result does not
     /// depend on the batch it is in.
-    fn forward<'a, T: Real>(
-        &'a self,
+    fn forward<T: Arith>(
+        &self,
         input: &[f64],
         rows: usize,
         out: &mut [f64],
         s: &mut Scratch<T>,
-        params: impl Fn(&'a Dense) -> (&'a Vec<T>, &'a Vec<T>),
-        fourier: impl Fn(usize) -> Option<(&'a Circulant<T>, &'a Vec<T>)>,
+        copies: Option<&[Option<FourierLayer>]>,
     ) {
         let (a, b) = (&mut s.a, &mut s.b);
         a.clear();
         a.extend(input.iter().map(|v| T::from_f64(*v)));
         let last = self.layers.len() - 1;
         for (i, l) in self.layers.iter().enumerate() {
-            if let Some((c, p)) = fourier(i) {
+            if let Some(f) = copies.and_then(|c| c[i].as_ref()) {
+                let (c, p) = T::fourier(f);
                 c.forward(p, a, rows, b, &mut s.xhat, &mut s.yhat);
             } else {
-                let (wt, bias) = params(l);
+                let (wt, bias) = T::dense(l);
                 ops::resize_for_overwrite(b, rows * l.n_out);
                 ops::fill_bias(b, bias);
                 gemm(rows, l.n_out, l.n_in, a, Trans::N, wt, b, true);
