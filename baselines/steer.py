@@ -44,7 +44,7 @@ import equigym  # noqa: F401  (registers the ids)
 from baselines.agents import EQUI_INITS, EquiSACPolicy, LayerNormSACPolicy, count_parameters
 from equigym import _core
 from equigym.latent import shipped_policy
-from equigym.steer import add_run_arguments
+from equigym.steer import EDP_KERNELS, UNNAMED_EDP_KERNEL, add_run_arguments
 from equigym.wrappers import TerminateOnSuccess
 
 METHODS = ("dsrl", "equi", "approx", "sac")
@@ -64,6 +64,12 @@ class LatentSAC(SAC):
             raw = np.clip(np.random.standard_normal((n_envs, *self.action_space.shape)), -high, high).astype(np.float32)
             return raw, self.policy.scale_action(raw)
         return super()._sample_action(learning_starts, action_noise, n_envs)
+
+
+def load_policy(task: str, policy_file: str | None, edp_kernel: str | None) -> _core.DiffusionPolicy:
+    """The EDP the latent envs run (the task's shipped one by default) on ``edp_kernel`` (default:
+    the runtime's), loaded once and shared by every env of a run."""
+    return _core.DiffusionPolicy(str(policy_file or shipped_policy(task)), kernel=edp_kernel)
 
 
 @functools.cache
@@ -95,6 +101,7 @@ def build(
     joint_limits: bool,
     policy_file: str | None,
     terminate_on_success: bool = False,
+    edp_kernel: str | None = None,
 ) -> tuple[SAC, Any]:
     env_kwargs: dict[str, Any] = {"joint_limits": joint_limits}
     if method == "sac":
@@ -102,8 +109,7 @@ def build(
         env_kwargs.update(action_mode="normalized", reward="sparse")
     else:
         env_id = LATENT_IDS[task]
-        if policy_file:
-            env_kwargs["policy"] = policy_file
+        env_kwargs["policy"] = load_policy(task, policy_file, edp_kernel)
 
     def make() -> gymnasium.Env:
         # The env truncates at its own horizon (400 control steps).
@@ -188,17 +194,22 @@ def evaluate(model: SAC | None, make, episodes: int, seed: int = 10_000) -> floa
 
 
 def base_success(
-    task: str, out: str | Path, episodes: int = 100, joint_limits: bool = True, policy_file: str | None = None
+    task: str,
+    out: str | Path,
+    episodes: int = 100,
+    joint_limits: bool = True,
+    policy_file: str | None = None,
+    edp_kernel: str | None = None,
 ) -> float:
     """The base policy's success before steering (cached in <out>/<task>[-nolimits]/base.json)."""
     path = Path(out) / f"{task}{'' if joint_limits else '-nolimits'}" / "base.json"
+    policy = load_policy(task, policy_file, edp_kernel)
     if path.exists():
         data = json.loads(path.read_text())
-        if data.get("episodes") == episodes and data.get("policy") == policy_file:
+        same = data.get("episodes") == episodes and data.get("policy") == policy_file
+        if same and data.get("edp_kernel", UNNAMED_EDP_KERNEL) == policy.kernel:
             return float(data["success_rate"])
-    kwargs: dict[str, Any] = {"joint_limits": joint_limits}
-    if policy_file:
-        kwargs["policy"] = policy_file
+    kwargs: dict[str, Any] = {"joint_limits": joint_limits, "policy": policy}
     rate = evaluate(None, lambda: gymnasium.make(LATENT_IDS[task], **kwargs), episodes)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(
@@ -208,6 +219,7 @@ def base_success(
                 "joint_limits": joint_limits,
                 "episodes": episodes,
                 "policy": policy_file,
+                "edp_kernel": policy.kernel,
                 "success_rate": rate,
             }
         )
@@ -339,6 +351,7 @@ def run(
     policy_file: str | None = None,
     progress: bool = True,
     terminate_on_success: bool = False,
+    edp_kernel: str | None = None,
 ) -> Path:
     if isinstance(preset, str):
         preset = {"name": preset, **PRESETS[preset]}
@@ -347,7 +360,8 @@ def run(
     ckpt = run_dir / "checkpoint"
     ckpt.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(1)
-    model, make = build(method, task, preset, seed, joint_limits, policy_file, terminate_on_success)
+    model, make = build(method, task, preset, seed, joint_limits, policy_file, terminate_on_success, edp_kernel)
+    kernel = None if method == "sac" else load_policy(task, policy_file, edp_kernel).kernel
     chunk = 1 if method == "sac" else 4
     meta = {
         "agent": "sb3",
@@ -363,6 +377,9 @@ def run(
         "steps": steps,
         "joint_limits": joint_limits,
         **({"terminate_on_success": True} if terminate_on_success else {}),
+        # named where not dense, as the Rust runner does (runs recorded before the Fourier kernel
+        # name none)
+        **({"edp_kernel": kernel} if kernel and kernel != UNNAMED_EDP_KERNEL else {}),
         "params_actor": count_parameters(model.actor),
         "params_critic": count_parameters(model.critic),
     }
@@ -412,6 +429,7 @@ def main(argv: list[str] | None = None) -> None:
     b.add_argument("--out", default="runs/steer")
     b.add_argument("--no-joint-limits", action="store_true")
     b.add_argument("--policy", default=None)
+    b.add_argument("--edp-kernel", choices=EDP_KERNELS, default=None)
     r = sub.add_parser("report")
     r.add_argument("--runs", default="runs/steer")
     r.add_argument("--out", default="docs/steering")
@@ -422,7 +440,8 @@ def main(argv: list[str] | None = None) -> None:
         print(write_report(a.runs, a.out))
     elif a.cmd == "base":
         print(
-            f"{a.task}: base policy success {base_success(a.task, a.out, a.episodes, not a.no_joint_limits, a.policy):.3f}"
+            f"{a.task}: base policy success "
+            f"{base_success(a.task, a.out, a.episodes, not a.no_joint_limits, a.policy, a.edp_kernel):.3f}"
         )
     else:
         preset = {"name": a.preset, **PRESETS[a.preset]}
@@ -443,6 +462,7 @@ def main(argv: list[str] | None = None) -> None:
             a.policy,
             progress=not a.no_progress,
             terminate_on_success=a.terminate_on_success,
+            edp_kernel=a.edp_kernel,
         )
 
 

@@ -64,7 +64,7 @@ def main() -> None:
     ]
     for task in ("lift", "stack", "square"):
         path = str(shipped_policy(task))
-        dense, fourier = DiffusionPolicy(path), DiffusionPolicy(path, kernel="fourier")
+        dense, fourier = DiffusionPolicy(path, kernel="dense"), DiffusionPolicy(path, kernel="fourier")
         rng = np.random.default_rng(0)
         obs = rng.standard_normal((a.batch, dense.obs_dim)) * 0.1
         w = rng.standard_normal((a.batch, dense.action_dim))

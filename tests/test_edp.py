@@ -2,6 +2,7 @@
 latent-action environments."""
 
 import json
+import pickle
 
 import gymnasium
 import numpy as np
@@ -78,7 +79,8 @@ def test_demos_use_robomimics_layout(lift_demos):
 
 
 def test_rust_runtime_matches_pytorch(tiny_policy):
-    policy = DiffusionPolicy(tiny_policy)
+    # The dense kernel runs the file's own matrices: PyTorch's float64 map to 1e-9.
+    policy = DiffusionPolicy(tiny_policy, kernel="dense")
     assert policy.task == "lift" and policy.chunk_len == 4 and policy.action_dim == 40 and policy.group == "C8"
     rng = np.random.default_rng(0)
     env = equigym.CoreEnv("lift")
@@ -93,6 +95,16 @@ def test_rust_runtime_matches_pytorch(tiny_policy):
     assert policy.sample(obs, w, steps=10).shape == (8, 4, 10)
     with pytest.raises(ValueError, match="DDIM steps"):
         policy.sample(obs, w, steps=0)
+    # The default kernel runs the C8 hidden layers in the Fourier basis, projected from the file's
+    # blocks (circulant to float32 rounding): the same map up to that rounding.
+    fourier = DiffusionPolicy(tiny_policy)
+    assert fourier.kernel == "fourier" and fourier.fourier_layers
+    assert not np.array_equal(fourier.sample(obs, w), policy.sample(obs, w))
+    np.testing.assert_allclose(fourier.sample(obs, w, precision="f64").reshape(8, 40), rust64, atol=1e-5)
+    np.testing.assert_allclose(fourier.sample(obs, w).reshape(8, 40), rust64, atol=1e-4)
+    assert [pickle.loads(pickle.dumps(p)).kernel for p in (policy, fourier)] == ["dense", "fourier"]
+    with pytest.raises(ValueError, match="kernel must be"):
+        DiffusionPolicy(tiny_policy, kernel="fft")
 
 
 def test_loaded_policy_is_equivariant(tiny_policy):
@@ -442,7 +454,7 @@ def test_shipped_policies_are_equivariant_and_match_the_trainers_export(task):
     from equigym.assets import asset_path
 
     path = asset_path("edp", f"{task}.safetensors")
-    policy = DiffusionPolicy(path)
+    policy = DiffusionPolicy(path, kernel="dense")  # the file's own matrices
     sym = Symmetry(task)
     env = equigym.CoreEnv(task, variant=policy.metadata.get("variant") or None)
     rng = np.random.default_rng(3)
@@ -459,6 +471,11 @@ def test_shipped_policies_are_equivariant_and_match_the_trainers_export(task):
     n = len(obs)
     chunk = policy.sample(obs, w, precision="f64").reshape(n, -1)
     np.testing.assert_allclose(chunk, ExportedPolicy(path).sample(obs, w).reshape(n, -1), atol=1e-6)
-    for g in sym.elements:
-        rotated = policy.sample(sym.act_observation(obs, g=g), sym.act_latent(w, g=g), precision="f64")
-        np.testing.assert_allclose(rotated.reshape(n, -1), sym.act_chunk(chunk, g=g), atol=1e-4)
+    # The default (Fourier) kernel: the same map to the float32 rounding of the file's blocks.
+    fourier = DiffusionPolicy(path)
+    np.testing.assert_allclose(fourier.sample(obs, w, precision="f64").reshape(n, -1), chunk, atol=1e-5)
+    for p in (policy, fourier):
+        base = p.sample(obs, w, precision="f64").reshape(n, -1)
+        for g in sym.elements:
+            rotated = p.sample(sym.act_observation(obs, g=g), sym.act_latent(w, g=g), precision="f64")
+            np.testing.assert_allclose(rotated.reshape(n, -1), sym.act_chunk(base, g=g), atol=1e-4)

@@ -224,7 +224,7 @@ def test_main_job_steers_with_the_rust_agents(tmp_path, capsys):
     lines = printed.splitlines()
     assert any(line.startswith("| base policy, N(0, I) | 2 |") for line in lines)
     assert any(line.startswith("| narrow-noise base, N(0, 0.5^2 I) | 2 |") for line in lines)
-    final = next(line for line in lines if "target_entropy=20.0), final" in line)
+    final = next(line for line in lines if "target_entropy=20.0, edp_kernel=fourier), final" in line)
     finals = [read(tmp_path / "lift" / "dsrl" / f"seed{s}" / "log.csv")[-3:] for s in (0, 1)]
     wins = sum(round(float(r["success_rate"]) * 2) for rows in finals for r in rows)
     assert f"{wins}/12 = " in final
@@ -238,20 +238,30 @@ def test_main_job_steers_with_the_rust_agents(tmp_path, capsys):
     assert row.split("|")[7].strip() == f"{sum(x['eval_env_steps'] for x in summaries) / 2:,.0f}"
 
 
-def test_a_6k_step_equi_run_matches_its_recorded_weights(tmp_path):
+@pytest.mark.parametrize(
+    ("edp_kernel", "final", "params_hash"),
+    [
+        ("fourier", (6000, 1.0, 11.224593162536621), "45af11a46ca5f28d"),
+        ("dense", (6000, 0.5, 9.470488548278809), "ab87929257f452c6"),
+    ],
+)
+def test_a_6k_step_equi_run_matches_its_recorded_weights(tmp_path, edp_kernel, final, params_hash):
     """A longer golden than agents/tests/runs.rs (384 env steps, blessed on an AMD EPYC): 6,000
     env steps of Equi-DSRL on Lift, 2,000 gradient steps, through the release build. The final
     weights' hash and the last mean Q were first recorded on an Intel Xeon with AVX-512 and
     reproduced on an AMD EPYC; re-blessed when the shipped Lift EDP became the 16k-step one
     (docs/edp.md), and on an AMD EPYC when the patched rapier began to reuse the arm's mass matrix
     across a physics step's substeps (vendor/rapier3d/PATCH.md), and when the IK began to stop a
-    stalled solve early (envs/src/robot/kinematics.rs). The same run with the full evaluation protocol gives the same hash, since
-    evaluations draw from their own streams. A machine that gives other bits here breaks the README's promise that the main
-    job prints the same figures everywhere (docs/steering.md, "Reproducibility across machines")."""
-    s = _core.steer_run("equi", "lift", 0, 6000, str(tmp_path), eval_every=6000, eval_episodes=2)
+    stalled solve early (envs/src/robot/kinematics.rs). The EDP's dense kernel still gives that
+    record, as every run recorded before the Fourier kernel became the default replays on it; the
+    default's figures were recorded on an AMD EPYC. The same run with the full evaluation protocol
+    gives the same hash, since evaluations draw from their own streams. A machine that gives other
+    bits here breaks the README's promise that the main job prints the same figures everywhere
+    (docs/steering.md, "Reproducibility across machines")."""
+    s = _core.steer_run("equi", "lift", 0, 6000, str(tmp_path), eval_every=6000, eval_episodes=2, edp_kernel=edp_kernel)
     assert s["grad_steps"] == 2000
-    assert [(r[0], r[1], r[2]) for r in s["rows"]] == [(16, 1.0, -0.7359681129455566), (6000, 0.5, 9.470488548278809)]
-    assert s["params_hash"] == "ab87929257f452c6"
+    assert [(r[0], r[1], r[2]) for r in s["rows"]] == [(16, 1.0, -0.7359681129455566), final]
+    assert s["params_hash"] == params_hash
 
 
 def test_summarize_counts_the_peak_only_once_training_started():
@@ -289,7 +299,9 @@ def test_compare_puts_runs_beside_their_controls_on_the_same_starts(tmp_path):
     assert "17/24 = 0.708" in final and "0.75, 0.67" in final
     untrained = next(line for line in text.splitlines() if "untrained actor" in line)
     assert "3/8 = 0.375" in untrained
-    base = [_core.evaluate_base("lift", seed=s, episodes=4, env={"horizon": 60}, policy=policy) for s in (0, 1)]
+    # The runs' run.json names no kernel: they ran dense, and so do their controls.
+    kw = dict(episodes=4, env={"horizon": 60}, policy=policy, edp_kernel="dense")
+    base = [_core.evaluate_base("lift", seed=s, **kw) for s in (0, 1)]
     wins = sum(b["successes"] for b in base)
     base_row = next(line for line in text.splitlines() if line.startswith("| base policy"))
     assert f"{wins}/8 = " in base_row
@@ -315,18 +327,22 @@ def test_main_job_refuses_a_rust_only_recipe_for_the_sb3_agents(tmp_path):
     assert not any(tmp_path.iterdir()), "nothing ran"
 
 
-def test_a_run_on_the_fourier_kernel_says_so_and_its_controls_run_on_it(tmp_path):
-    """``edp_kernel="fourier"``: run.json records it (a dense run's says nothing, as before), a
-    checkpoint of one kernel never resumes on the other, and the run's control arms evaluate the
-    base on the run's kernel (their cache keyed by it)."""
-    dense = steer.run("dsrl", "stack", 0, 64, tmp_path, **SHORT)
+def test_the_edp_kernel_is_fourier_by_default_and_a_dense_run_replays_the_records(tmp_path, monkeypatch):
+    """The default kernel is the Fourier one and run.json names it; a dense run's names none (as
+    every run recorded before the Fourier kernel), a checkpoint of one kernel never resumes on the
+    other, and a run's control arms evaluate the base on the run's kernel (their cache keyed by it,
+    a file that names none read as dense)."""
+    dense = steer.run("dsrl", "stack", 0, 64, tmp_path, edp_kernel="dense", **SHORT)
     run_dir = Path(dense["run_dir"])
-    assert "edp_kernel" not in json.loads((run_dir / "run.json").read_text())
+    dense_meta = {**json.loads((run_dir / "run.json").read_text()), "eval_episodes": 2}
+    assert "edp_kernel" not in dense_meta
     with pytest.raises(ValueError, match="checkpoint"):
-        steer.run("dsrl", "stack", 0, 128, tmp_path, edp_kernel="fourier", **SHORT)
+        steer.run("dsrl", "stack", 0, 128, tmp_path, **SHORT)
     with pytest.raises(ValueError, match="kernel must be"):
         steer.run("dsrl", "stack", 0, 64, tmp_path / "x", edp_kernel="fft", **SHORT)
-    fourier = steer.run("dsrl", "stack", 0, 64, tmp_path / "f", edp_kernel="fourier", **SHORT)
+    fourier = steer.run("dsrl", "stack", 0, 64, tmp_path / "f", **SHORT)
+    named = steer.run("dsrl", "stack", 0, 64, tmp_path / "g", edp_kernel="fourier", **SHORT)
+    assert fourier["params_hash"] == named["params_hash"] and fourier["rows"][-1][:3] == named["rows"][-1][:3]
     meta = json.loads((Path(fourier["run_dir"]) / "run.json").read_text())
     assert meta["edp_kernel"] == "fourier"
     meta = {**meta, "eval_episodes": 2}
@@ -337,3 +353,10 @@ def test_a_run_on_the_fourier_kernel_says_so_and_its_controls_run_on_it(tmp_path
     )
     assert got == want
     assert all('"edp_kernel": "fourier"' in key for key in json.loads(cache.read_text()))
+    # A run.json that names no kernel ran dense: its controls are evaluated dense, under a key
+    # without the kernel (the committed caches' keys).
+    asked = []
+    monkeypatch.setattr(_core, "evaluate_base", lambda task, **kw: asked.append(kw) or {"success_rate": 0.0})
+    steer.controls(dense_meta, [0], (1.0,), cache)
+    assert [kw["edp_kernel"] for kw in asked] == ["dense"]
+    assert sum("edp_kernel" not in key for key in json.loads(cache.read_text())) == 1

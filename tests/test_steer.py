@@ -38,6 +38,8 @@ def test_run_logs_resumes_and_reports(method, tmp_path):
     assert controls(read_run(run_dir)["meta"], [0], compute=False) == {1.0: [], 0.5: [], 0.0: []}
     meta = json.loads((run_dir / "run.json").read_text())
     assert meta["method"] == method and meta["params_actor"] > 0
+    # the EDP's kernel, named as the Rust runner names it (the runtime's default, Fourier)
+    assert meta.get("edp_kernel") == (None if method == "sac" else "fourier")
     # "Killed" after 64 steps; asking for 128 continues from the checkpoint, replay buffer included.
     steer.run(method, "lift", 0, 128, out, TINY, eval_every=32, eval_episodes=1, progress=False)
     second = rows(run_dir / "log.csv")
@@ -55,7 +57,7 @@ def test_run_logs_resumes_and_reports(method, tmp_path):
     assert list(train[0]) == steer.TRAIN_COLUMNS and [r["env_steps"] for r in train] == [str(s) for s in steps]
     # Base policy success is cached per task folder and appears in the report.
     rate = steer.base_success("lift", out, episodes=2)
-    assert 0.0 <= rate <= 1.0 and (out / "lift" / "base.json").exists()
+    assert 0.0 <= rate <= 1.0 and json.loads((out / "lift" / "base.json").read_text())["edp_kernel"] == "fourier"
     text = write_report(out, tmp_path / "report")
     # The report has the method's row.
     assert "| lift | " in text and (tmp_path / "report" / "lift.png").exists()

@@ -31,7 +31,8 @@ def test_a_cell_two_parts_need_is_run_once_and_jobs_are_seed_major():
     assert config["utd"] == 30 and "utd" not in study.trial_config(cells[0], jobs[0], study.ROOT)
     square = study.CELLS["square"]
     assert study.trial_config(square, study.jobs([square])[0], study.ROOT)["edp_kernel"] == "fourier"
-    assert "edp_kernel" not in study.trial_config(cells[0], jobs[0], study.ROOT)
+    # every cell names its kernel: the runtime's default is not what the cells begun before it ran
+    assert study.trial_config(cells[0], jobs[0], study.ROOT)["edp_kernel"] == "dense"
     quick = study.cells_of(["dial"], quick=True)
     assert all(c.steps == 64 and c.seeds == (0,) for c in quick)
 
@@ -62,7 +63,8 @@ def test_the_report_pairs_each_run_with_its_own_seeds_base_and_runs_nothing(tmp_
     log.write_text(log.read_text().replace(f"{cell.steps},", f"{cell.steps // 2},"))
     base = {0: 0.6, 1: 0.4}
 
-    def evaluate_base(task, *, seed, scale, episodes, policy, env, threads):
+    def evaluate_base(task, *, seed, scale, episodes, policy, edp_kernel, env, threads):
+        assert edp_kernel == "dense", "a run.json that names no kernel ran dense"
         rate = base[seed] * scale
         return {
             "seed": seed,

@@ -23,18 +23,19 @@ pub struct DiffusionPolicy {
     origin: String,
 }
 
-/// `"dense"` or `"fourier"` as the runtime's kernel.
-fn kernel(name: &str) -> PyResult<Kernel> {
-    name.parse().map_err(to_py)
+/// `"fourier"` or `"dense"` as the runtime's kernel; `None` is the runtime's default (Fourier).
+pub(crate) fn kernel(name: Option<&str>) -> PyResult<Kernel> {
+    name.map_or(Ok(Kernel::default()), |n| n.parse().map_err(to_py))
 }
 
 #[pymethods]
 impl DiffusionPolicy {
     /// Load from a file path, or from the bytes of a policy file (`origin` names it in errors);
-    /// `kernel` runs the regular-to-regular layers dense (default) or in the Fourier basis.
+    /// `kernel` runs the regular-to-regular layers in the Fourier basis (`None`: the default) or
+    /// dense (`"dense"`: the file's own matrices, the kernel of runs recorded before the Fourier one).
     #[new]
-    #[pyo3(signature = (source, origin=None, kernel="dense"))]
-    fn new(source: &Bound<'_, PyAny>, origin: Option<String>, kernel: &str) -> PyResult<Self> {
+    #[pyo3(signature = (source, origin=None, kernel=None))]
+    fn new(source: &Bound<'_, PyAny>, origin: Option<String>, kernel: Option<&str>) -> PyResult<Self> {
         let kernel = self::kernel(kernel)?;
         let (bytes, origin) = match source.cast::<PyBytes>() {
             Ok(b) => (b.as_bytes().to_vec(), origin.unwrap_or_else(|| "<bytes>".into())),
@@ -51,7 +52,7 @@ impl DiffusionPolicy {
     fn __getnewargs__<'py>(&self, py: Python<'py>) -> (Bound<'py, PyBytes>, String, &'static str) {
         (PyBytes::new(py, &self.bytes), self.origin.clone(), self.inner.kernel.as_str())
     }
-    /// `"dense"` or `"fourier"`.
+    /// `"fourier"` or `"dense"`.
     #[getter]
     fn kernel(&self) -> &'static str {
         self.inner.kernel.as_str()
@@ -123,11 +124,11 @@ impl DiffusionPolicy {
     }
 }
 
-/// A loaded `DiffusionPolicy` (shared) or a path to load one from.
+/// A loaded `DiffusionPolicy` (shared) or a path to load one from (on the default kernel).
 pub(crate) fn policy_object(py: Python<'_>, policy: &Bound<'_, PyAny>) -> PyResult<Py<DiffusionPolicy>> {
     match policy.cast::<DiffusionPolicy>() {
         Ok(p) => Ok(p.clone().unbind()),
-        Err(_) => Py::new(py, DiffusionPolicy::new(policy, None, "dense")?),
+        Err(_) => Py::new(py, DiffusionPolicy::new(policy, None, None)?),
     }
 }
 

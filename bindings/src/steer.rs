@@ -32,7 +32,7 @@ pub fn steer_preset<'py>(py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyD
 /// `env` holds the environments' options (their keyword arguments: joint_limits, controller,
 /// horizon, variant, physics, ...).
 #[pyfunction]
-#[pyo3(signature = (method, task, seed, steps, out, *, threads=1, preset="cpu", env=None, eval_every=2000, eval_episodes=50, policy=None, edp_kernel="dense", ent_init=None, utd=None, terminate_on_success=false, noise_aliased=false, target_entropy=None, prior_kl=None, reward_scale=None, select=None, progress=false, stop_after_evals=None))]
+#[pyo3(signature = (method, task, seed, steps, out, *, threads=1, preset="cpu", env=None, eval_every=2000, eval_episodes=50, policy=None, edp_kernel=None, ent_init=None, utd=None, terminate_on_success=false, noise_aliased=false, target_entropy=None, prior_kl=None, reward_scale=None, select=None, progress=false, stop_after_evals=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn steer_run<'py>(
     py: Python<'py>,
@@ -47,7 +47,7 @@ pub fn steer_run<'py>(
     eval_every: usize,
     eval_episodes: usize,
     policy: Option<PathBuf>,
-    edp_kernel: &str,
+    edp_kernel: Option<&str>,
     ent_init: Option<f64>,
     utd: Option<usize>,
     terminate_on_success: bool,
@@ -66,7 +66,7 @@ pub fn steer_run<'py>(
     cfg.eval_every = eval_every;
     cfg.eval_episodes = eval_episodes;
     cfg.policy = policy;
-    cfg.edp_kernel = edp_kernel.parse().map_err(to_py)?;
+    cfg.edp_kernel = crate::policy::kernel(edp_kernel)?;
     cfg.ent_init = ent_init;
     cfg.utd = utd;
     cfg.terminate_on_success = terminate_on_success;
@@ -105,7 +105,7 @@ pub fn steer_run<'py>(
 /// policy, scale, seed, first_start, successes / episodes / success_rate / low / high (Wilson
 /// 95 %), and `outcomes`, one bool per episode in start order.
 #[pyfunction]
-#[pyo3(signature = (task, *, seed=0, episodes=200, scale=1.0, policy=None, edp_kernel="dense", env=None, threads=1))]
+#[pyo3(signature = (task, *, seed=0, episodes=200, scale=1.0, policy=None, edp_kernel=None, env=None, threads=1))]
 #[allow(clippy::too_many_arguments)]
 pub fn evaluate_base<'py>(
     py: Python<'py>,
@@ -114,14 +114,14 @@ pub fn evaluate_base<'py>(
     episodes: usize,
     scale: f64,
     policy: Option<PathBuf>,
-    edp_kernel: &str,
+    edp_kernel: Option<&str>,
     env: Option<&Bound<'py, PyDict>>,
     threads: usize,
 ) -> PyResult<Bound<'py, PyDict>> {
     let mut cfg = RunConfig::new(Method::Dsrl, task, seed, 0, PathBuf::new()).map_err(to_py)?;
     cfg.eval_episodes = episodes;
     cfg.policy = policy;
-    cfg.edp_kernel = edp_kernel.parse().map_err(to_py)?;
+    cfg.edp_kernel = crate::policy::kernel(edp_kernel)?;
     cfg.env = env_options(env)?;
     cfg.threads = threads;
     let e = py.detach(|| base_evaluation(&cfg, scale)).map_err(to_py)?;

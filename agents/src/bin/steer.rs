@@ -28,7 +28,7 @@ use equigym_wrappers::steerability::{ProbeConfig, Rate};
 const USAGE: &str =
     "usage: steer run --method {dsrl,equi,approx} --task {lift,stack,square} --seed S --steps N --out DIR \
 [--threads T] [--preset cpu|paper] [--env JSON] [--no-joint-limits] [--controller joint|cartesian] [--eval-every N] \
-[--eval-episodes N] [--policy FILE] [--edp-kernel dense|fourier] [--ent-init X] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X | --prior-kl NATS] [--reward-scale X] [--select N] [--utd N] [--quiet]
+[--eval-episodes N] [--policy FILE] [--edp-kernel fourier|dense] [--ent-init X] [--horizon N] [--terminate-on-success] [--noise-aliased] [--target-entropy X | --prior-kl NATS] [--reward-scale X] [--select N] [--utd N] [--quiet]
        steer probe <the run's options> --report DIR [--starts N] [--at K,K,..] [--candidates M] [--continuations K] [--actor-samples A]
        steer eval <the run's options> [--actor mean|sampled|best-of-N] [--episodes N]";
 

@@ -94,9 +94,10 @@ pub struct RunConfig {
     pub eval_episodes: usize,
     /// Diffusion policy file (default: the shipped one for the task).
     pub policy: Option<PathBuf>,
-    /// The kernel that runs the policy's regular-to-regular layers ([`Kernel`]; default dense,
-    /// the recorded runs' bits). The Fourier kernel is the same map up to float rounding and
-    /// decodes a Square D2 chunk about 5x faster, which is most of a noise-aliased run's cost.
+    /// The kernel that runs the policy's regular-to-regular layers ([`Kernel`]; default the
+    /// Fourier basis). The dense kernel is the same map up to float rounding, about 5x slower on
+    /// Square D2 (most of a noise-aliased run's cost), and the one the runs recorded before the
+    /// Fourier kernel existed used: a run that sets it replays them.
     pub edp_kernel: Kernel,
     /// Initial entropy coefficient (default: the preset's).
     pub ent_init: Option<f64>,
@@ -154,7 +155,7 @@ impl RunConfig {
             eval_every: EVAL_EVERY,
             eval_episodes: EVAL_EPISODES,
             policy: None,
-            edp_kernel: Kernel::Dense,
+            edp_kernel: Kernel::default(),
             ent_init: None,
             utd: None,
             terminate_on_success: false,
@@ -254,6 +255,8 @@ impl RunConfig {
         if let Some(rest) = self.other_env_options() {
             later.push_str(&format!("|env={}", serde_json::to_string(&rest).unwrap_or_default()));
         }
+        // Named where it is not dense, the kernel of every run recorded before the Fourier one
+        // existed, so that their checkpoints keep their fingerprints.
         if self.edp_kernel != Kernel::Dense {
             later.push_str(&format!("|edp_kernel={}", self.edp_kernel.as_str()));
         }
@@ -348,12 +351,16 @@ mod tests {
     }
 
     #[test]
-    fn the_edp_kernel_changes_the_fingerprint_only_where_it_is_not_the_default() {
+    fn the_fourier_kernel_is_the_default_and_named_in_the_fingerprint() {
         let mut lift = cfg("lift");
-        let dense = lift.fingerprint();
-        assert!(!dense.contains("edp_kernel"), "earlier runs' checkpoints keep their fingerprints");
-        lift.edp_kernel = Kernel::Fourier;
+        assert_eq!(lift.edp_kernel, Kernel::Fourier);
         assert!(lift.fingerprint().ends_with("|edp_kernel=fourier"));
         assert_eq!(lift.load_policy().unwrap().kernel, Kernel::Fourier);
+        lift.edp_kernel = Kernel::Dense;
+        assert!(
+            !lift.fingerprint().contains("edp_kernel"),
+            "earlier (dense) runs' checkpoints keep their fingerprints"
+        );
+        assert_eq!(lift.load_policy().unwrap().kernel, Kernel::Dense);
     }
 }

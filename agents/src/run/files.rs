@@ -180,7 +180,8 @@ struct RunMeta<'a> {
     /// The other environment options, where any differs from the default.
     #[serde(skip_serializing_if = "Option::is_none")]
     env: Option<EnvOptions>,
-    /// The EDP's kernel, where not the dense default.
+    /// The EDP's kernel, where not dense (the kernel of every run recorded before the Fourier
+    /// one existed, whose files name none).
     #[serde(skip_serializing_if = "Option::is_none")]
     edp_kernel: Option<&'a str>,
 }

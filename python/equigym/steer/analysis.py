@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from equigym import _core
-from equigym.steer.runs import RUN_OPTIONS, VALUED_OPTIONS, read_run, run_env
+from equigym.steer.runs import RUN_OPTIONS, UNNAMED_EDP_KERNEL, VALUED_OPTIONS, read_run, run_env
 from equigym.steer.stats import format_mean_se, format_pooled
 from equigym.steer.sweep_report import write_report
 
@@ -152,9 +152,11 @@ def controls(
             if key not in known and not compute:
                 continue
             if key not in known:
-                kw = {"policy": settings["policy"], "episodes": settings["episodes"]}
-                if "edp_kernel" in settings:
-                    kw["edp_kernel"] = settings["edp_kernel"]
+                kw = {
+                    "policy": settings["policy"],
+                    "episodes": settings["episodes"],
+                    "edp_kernel": settings.get("edp_kernel", UNNAMED_EDP_KERNEL),
+                }
                 known[key] = _core.evaluate_base(
                     meta["task"], seed=seed, scale=scale, threads=threads, env=run_env(meta), **kw
                 )

@@ -38,11 +38,19 @@ from equigym.steer.trials import screen, sweep
 
 def add_run_arguments(s: argparse.ArgumentParser) -> None:
     """The run options every steering command shares, the Rust agents' and ``baselines.steer``'s
-    (SB3) alike: joint limits, evaluation schedule, the EDP file, terminate-on-success."""
+    (SB3) alike: joint limits, evaluation schedule, the EDP file and its kernel, terminate-on-success."""
     s.add_argument("--no-joint-limits", action="store_true")
     s.add_argument("--eval-every", type=int, default=DEFAULT_EVAL["eval_every"])
     s.add_argument("--eval-episodes", type=int, default=DEFAULT_EVAL["eval_episodes"])
     s.add_argument("--policy", default=None, help="EDP file (default: the shipped one)")
+    s.add_argument(
+        "--edp-kernel",
+        choices=EDP_KERNELS,
+        default=None,
+        help="how the EDP's regular-to-regular layers run: in the Fourier basis (the default) or dense (the "
+        "same map up to float rounding, 1.8-4.8x slower; the kernel of runs recorded before the Fourier one, "
+        "which replay only on it)",
+    )
     s.add_argument(
         "--terminate-on-success",
         action="store_true",
@@ -85,13 +93,6 @@ def main(argv: list[str] | None = None) -> None:
                 '\'{"variant": "D2", "physics": {"substeps": 6}}\')',
             )
             s.add_argument("--horizon", type=int, default=None, help="episode length override (control steps)")
-            s.add_argument(
-                "--edp-kernel",
-                choices=EDP_KERNELS,
-                default="dense",
-                help="how the EDP's regular-to-regular layers run: dense (the recorded runs' bits) or in the "
-                "Fourier basis (the same map up to float rounding, 3-5x faster on Stack D1 and Square D2)",
-            )
             s.add_argument("--quiet", action="store_true")
             s.add_argument("--out", default="runs/steer-rust")
             s.add_argument(

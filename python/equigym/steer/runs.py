@@ -39,9 +39,11 @@ DEFAULT_EVAL = {"eval_every": 2000, "eval_episodes": 50}
 RUN_OPTIONS = ("terminate_on_success", "noise_aliased", "target_entropy", "prior_kl", "reward_scale", "select", "utd")
 VALUED_OPTIONS = ("target_entropy", "prior_kl", "reward_scale", "select", "utd")
 #: How the EDP's regular-to-regular layers run (``_core.DiffusionPolicy``'s ``kernel``): the
-#: first is the default, which ``run.json`` leaves out; a run that sets another records it as
-#: ``edp_kernel``.
-EDP_KERNELS = ("dense", "fourier")
+#: first is the runtime's default; ``run.json`` names a kernel (``edp_kernel``) where it is not
+#: dense, so a file that names none (every run recorded before the Fourier kernel) ran dense.
+EDP_KERNELS = ("fourier", "dense")
+#: The kernel of a ``run.json`` that names none.
+UNNAMED_EDP_KERNEL = "dense"
 COUNT_OPTIONS = ("select", "utd")
 
 

@@ -21,7 +21,6 @@ from typing import Any
 
 from equigym.steer.runs import (
     COUNT_OPTIONS,
-    EDP_KERNELS,
     RUN_OPTIONS,
     VALUED_OPTIONS,
     env_options,
@@ -77,7 +76,7 @@ def run_trial(config: dict[str, Any]) -> None:
                 eval_every=every,
                 eval_episodes=c["eval_episodes"],
                 policy=c["policy"],
-                edp_kernel=c.get("edp_kernel", EDP_KERNELS[0]),
+                edp_kernel=c.get("edp_kernel"),
                 ent_init=c["ent_init"],
                 progress=False,
                 **{k: c[k] for k in RUN_OPTIONS if k in c},
@@ -135,6 +134,8 @@ def _run_sb3(c: dict[str, Any], steps: int) -> Path:
         cmd.append("--no-joint-limits")
     if c["policy"]:
         cmd += ["--policy", str(c["policy"])]
+    if c.get("edp_kernel"):
+        cmd += ["--edp-kernel", c["edp_kernel"]]
     if c.get("terminate_on_success"):
         cmd.append("--terminate-on-success")
     subprocess.run(cmd, check=True)
@@ -189,6 +190,7 @@ def trial_settings(a: argparse.Namespace, out: Path) -> dict[str, Any]:
         "eval_every": a.eval_every,
         "eval_episodes": a.eval_episodes,
         "policy": a.policy,
+        "edp_kernel": a.edp_kernel,
         "ent_init": a.ent_init,
         "out_root": str(out),
     }

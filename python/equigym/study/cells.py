@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from equigym.steer import METHODS, resume_steps, run_steps, run_summary
+from equigym.steer import METHODS, UNNAMED_EDP_KERNEL, resume_steps, run_steps, run_summary
 
 #: The repository root: relative paths of cells (EDP files) are relative to it.
 ROOT = Path(__file__).resolve().parents[3]
@@ -70,7 +70,8 @@ class Cell:
     #: Gradient steps per transition where the cell sets its own (default: the preset's).
     utd: int | None = None
     #: How the EDP's regular-to-regular layers run (``equigym.steer.EDP_KERNELS``; the runs and
-    #: their control arms alike).
+    #: their control arms alike): dense unless a cell names another, since the cells were begun
+    #: before the Fourier kernel became the runtime's default.
     edp_kernel: str = "dense"
 
     def policy_path(self) -> str:
@@ -217,7 +218,7 @@ def cost_per_step(root: Path) -> dict[tuple[str, str, int | None], float]:
         for d in run_dirs(cell, root):
             summary = run_summary(d)
             meta = json.loads((d / "run.json").read_text()) if (d / "run.json").exists() else {}
-            if summary.get("env_steps") and meta.get("edp_kernel", "dense") == cell.edp_kernel:
+            if summary.get("env_steps") and meta.get("edp_kernel", UNNAMED_EDP_KERNEL) == cell.edp_kernel:
                 key = (cell.task, cell.agent, cell.utd)
                 seen.setdefault(key, []).append(summary["seconds"] / summary["env_steps"])
     return {**{(*k, None): v for k, v in DEFAULT_COST.items()}, **{k: sum(v) / len(v) for k, v in seen.items()}}

@@ -50,7 +50,7 @@ def trial_config(cell: Cell, job: dict[str, Any], root: Path) -> dict[str, Any]:
         "ent_init": None,
         **RECIPES[cell.recipe],
         **({"utd": cell.utd} if cell.utd is not None else {}),
-        **({"edp_kernel": cell.edp_kernel} if cell.edp_kernel != "dense" else {}),
+        "edp_kernel": cell.edp_kernel,
     }
 
 
