@@ -524,21 +524,35 @@ def format_rate(res: dict[str, Any]) -> str:
     return f"{res['successes']}/{res['episodes']} = {res['success_rate']:.3f} [{res['low']:.3f}, {res['high']:.3f}]"
 
 
+#: The benchmark's columns (chunks/s): the Rust runtime on its default kernel (the C8 hidden
+#: layers in the Fourier basis) and on the dense one (the file's matrices), both with a float32
+#: network, and the same MLP + DDIM in PyTorch.
+BENCH_RUST = "rust (default kernel)"
+BENCH_RUST_DENSE = "rust (dense kernel)"
+BENCH_TORCH32 = "pytorch (float32)"
+BENCH_TORCH64 = "pytorch (float64)"
+
+
 def benchmark(
     policy_path: str | Path, batches: tuple[int, ...] = (1, 256), seconds: float = 2.0
 ) -> list[dict[str, Any]]:
-    """Chunks per second of the Rust runtime and of the same MLP + DDIM in PyTorch (float32
-    and float64), side by side, on this machine's threads."""
+    """Chunks per second of the Rust runtime (float32 network, on its default Fourier kernel and on
+    the dense one, the file's own matrices) and of the same MLP + DDIM in PyTorch (float32 and
+    float64), side by side, on this machine's threads."""
     from equigym import _core
 
     rust = _core.DiffusionPolicy(str(policy_path))
+    dense = _core.DiffusionPolicy(str(policy_path), kernel="dense")
     rows = []
     for b in batches:
         rng = np.random.default_rng(0)
         obs = rng.normal(size=(b, rust.obs_dim)) * 0.05
         w = rng.normal(size=(b, rust.action_dim))
-        entries = {"rust (float64)": functools.partial(rust.sample, obs, w)}
-        for name, dt in (("pytorch (float32)", torch.float32), ("pytorch (float64)", torch.float64)):
+        entries = {
+            BENCH_RUST: functools.partial(rust.sample, obs, w),
+            BENCH_RUST_DENSE: functools.partial(dense.sample, obs, w),
+        }
+        for name, dt in ((BENCH_TORCH32, torch.float32), (BENCH_TORCH64, torch.float64)):
             entries[name] = functools.partial(ExportedPolicy(policy_path, dt).sample, obs, w)
         row: dict[str, Any] = {"batch": b}
         for name, fn in entries.items():
@@ -894,8 +908,9 @@ def report(out: str | Path, episodes: int = EVAL_EPISODES, seconds: float = 2.0,
     if bench_rows:
         lines += [
             "",
-            f"Inference speed ({bench_task} policy, chunks per second, one thread each; the same MLP and DDIM in "
-            "both: Rust `DiffusionPolicy.sample` vs PyTorch on the exported layers):",
+            f"Inference speed ({bench_task} policy, chunks per second, one thread each; the same MLP and DDIM: "
+            "Rust `DiffusionPolicy.sample` on its default kernel (the C8 hidden layers in the Fourier basis) and "
+            "on the dense one (the file's matrices), and PyTorch on the exported layers):",
             "",
             "| batch | " + " | ".join(k for k in bench_rows[0] if k != "batch") + " |",
             "|---:|" + "---:|" * (len(bench_rows[0]) - 1),

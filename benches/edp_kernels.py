@@ -10,6 +10,10 @@ kernels alternating; timings are CPU seconds of this process (``time.process_tim
 load on the machine distorts them less than wall time would. The last column is the largest
 difference between the two kernels' chunks (absolute actions) on the same inputs: the same map
 up to float rounding, not the same bits.
+
+The second table asks what those last bits do to whole episodes: the base policy (noise
+N(0, I), noise seed 0) on the pinned evaluation starts with each kernel, the same starts and the
+same noises, and how many episodes end the other way (``--episodes 0`` skips it).
 """
 
 from __future__ import annotations
@@ -39,6 +43,47 @@ def chunks_per_s(policy, obs: np.ndarray, w: np.ndarray, seconds: float) -> floa
     return len(obs) * n / (time.process_time() - t)
 
 
+def outcomes_table(episodes: int, threads: int) -> list[str]:
+    """The base policy's episodes on each kernel, paired by start: the rollouts' sensitivity to
+    the last bits of a chunk (McNemar's exact test on the discordant starts)."""
+    from scipy.stats import binomtest
+
+    from equigym import DiffusionPolicy, _core
+    from equigym.latent import shipped_policy
+
+    lines = [
+        "",
+        f"The base policy (noise N(0, I), noise seed 0) on the {episodes} pinned evaluation starts with each kernel: "
+        "the same starts and noise streams; on the same input the two chunks differ only by float rounding (the "
+        "table above). *Differ*: "
+        "the starts that succeed on one kernel and fail on the other (dense only / Fourier only); p: McNemar's "
+        "exact test that neither kernel succeeds more often.",
+        "",
+        "| shipped EDP | dense | Fourier | starts whose outcome differs | dense only / Fourier only | p |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for task in ("lift", "stack", "square"):
+        path = str(shipped_policy(task))
+        env = {"variant": DiffusionPolicy(path).metadata.get("variant") or None}
+        out = {
+            kernel: _core.evaluate_base(
+                task, seed=0, episodes=episodes, policy=path, edp_kernel=kernel, env=env, threads=threads
+            )["outcomes"]
+            for kernel in ("dense", "fourier")
+        }
+        pairs = list(zip(out["dense"], out["fourier"]))
+        dense_only = sum(d and not f for d, f in pairs)
+        fourier_only = sum(f and not d for d, f in pairs)
+        differ = dense_only + fourier_only
+        p = binomtest(dense_only, differ, 0.5).pvalue if differ else 1.0
+        lines.append(
+            f"| {task} | {sum(out['dense'])}/{episodes} | {sum(out['fourier'])}/{episodes} | "
+            f"{differ} ({differ / episodes:.0%}) | {dense_only} / {fourier_only} | {p:.2f} |"
+        )
+        print(lines[-1], flush=True)
+    return lines
+
+
 def main() -> None:
     from equigym import DiffusionPolicy
     from equigym.latent import shipped_policy
@@ -47,12 +92,15 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--batch", type=int, default=256)
     p.add_argument("--seconds", type=float, default=2.0, help="CPU seconds per measurement")
+    p.add_argument("--episodes", type=int, default=200, help="pinned starts per kernel for the rollout table")
+    p.add_argument("--threads", type=int, default=2, help="rollout threads (the outcomes do not depend on it)")
     p.add_argument("--out", default=str(ROOT / "benches" / "results" / "edp_kernels.md"))
     a = p.parse_args()
     lines = [
         "# The EDP runtime's kernels: dense against the Fourier basis",
         "",
-        f"`python benches/edp_kernels.py --repeats {a.repeats} --batch {a.batch}` on {cpu_name()} "
+        f"`python benches/edp_kernels.py --repeats {a.repeats} --batch {a.batch} --episodes {a.episodes}` on "
+        f"{cpu_name()} "
         f"({time.strftime('%Y-%m-%d')}): "
         f"DDIM chunks/s at batch {a.batch}, float32, one thread, best of {a.repeats} (range in brackets), the "
         "kernels alternating. Load average when it started: "
@@ -82,6 +130,8 @@ def main() -> None:
             f"{max(rates['fourier']) / max(rates['dense']):.1f}x | {diff:.1e} |"
         )
         print(lines[-1], flush=True)
+    if a.episodes:
+        lines += outcomes_table(a.episodes, a.threads)
     text = "\n".join(lines) + "\n"
     Path(a.out).write_text(text)
     print(text)

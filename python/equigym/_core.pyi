@@ -153,7 +153,7 @@ class DiffusionPolicy:
     ) -> DiffusionPolicy:
         """An exported EDP; ``kernel`` runs its regular-to-regular layers in the Fourier basis
         (``None``: the default) or dense (``"dense"``: the file's own matrices, the same map up to
-        float rounding, 1.8-4.8x slower to decode for the shipped policies; the kernel of the runs
+        float rounding, several times slower to decode for the shipped policies; the kernel of the runs
         recorded before the Fourier one, which replay only on it)."""
     def __getnewargs__(self) -> tuple[bytes, str, str]: ...
     @property

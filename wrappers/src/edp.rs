@@ -27,14 +27,15 @@
 //! others (the input and output layers, every layer of a plain EDP) dense. A policy that only
 //! ever runs dense pays nothing for them, at load or in memory.
 //!
-//! It is the same map up to float rounding, not the same bits, and it is the default: 1.8x (Lift)
-//! to 4.8x (Square D2) the dense kernel's chunks per second at batch 256, and its float32 chunks
-//! are at least as close to the float64 map as the dense kernel's (`wrappers/tests/edp.rs`). The
-//! dense kernel ([`Kernel::Dense`]) stays for the runs recorded on it, which replay only there: a
-//! steering run names the Fourier kernel in its `run.json` and its checkpoint's fingerprint, and
-//! one that names no kernel ran dense. Like
-//! the dense one the Fourier kernel sums every row in a fixed order, so its results do not depend
-//! on the batch, the thread split or the CPU's vector width either.
+//! It is the same map up to float rounding, not the same bits, and it is the default: several
+//! times the dense kernel's chunks per second on the shipped EDPs, the more the wider their
+//! hidden layers (`benches/edp_kernels.py`), and its float32 chunks are at least as close to the
+//! float64 map as the dense kernel's (`wrappers/tests/edp.rs`). The dense kernel
+//! ([`Kernel::Dense`]) stays for the runs recorded on it, which replay only there: a steering run
+//! names the Fourier kernel in its `run.json` and its checkpoint's fingerprint, and one that
+//! names no kernel ran dense. Like the dense one the Fourier kernel sums every row in a fixed
+//! order, so its results do not depend on the batch, the thread split or the CPU's vector width
+//! either.
 
 use std::path::Path;
 use std::sync::OnceLock;

@@ -48,7 +48,7 @@ def add_run_arguments(s: argparse.ArgumentParser) -> None:
         choices=EDP_KERNELS,
         default=None,
         help="how the EDP's regular-to-regular layers run: in the Fourier basis (the default) or dense (the "
-        "same map up to float rounding, 1.8-4.8x slower; the kernel of runs recorded before the Fourier one, "
+        "same map up to float rounding, several times slower; the kernel of runs recorded before the Fourier one, "
         "which replay only on it)",
     )
     s.add_argument(
