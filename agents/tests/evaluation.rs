@@ -7,6 +7,7 @@ use std::sync::Arc;
 use equigym_agents::evaluation::{evaluate_base, EVAL_SEED};
 use equigym_agents::rng::{Rng, Stream};
 use equigym_agents::run::{evaluate_checkpoint, make_env, ActorNoise};
+use equigym_agents::sac::candidates;
 use equigym_agents::{Error, Method, RunConfig};
 use equigym_wrappers::DiffusionPolicy;
 
@@ -20,18 +21,21 @@ fn config(threads: usize) -> RunConfig {
 
 /// Episode k by hand, one latent step at a time.
 fn by_hand(cfg: &RunConfig, scale: f64, k: u64) -> bool {
-    by_hand_from(cfg, scale, Rng::new(cfg.seed, Stream::BaseEval, k), k)
+    let mut rng = Rng::new(cfg.seed, Stream::BaseEval, k);
+    by_hand_from(cfg, k, |dim, bound| (0..dim).map(|_| (scale * rng.normal()).clamp(-bound, bound)).collect())
 }
 
-fn by_hand_from(cfg: &RunConfig, scale: f64, mut rng: Rng, k: u64) -> bool {
-    let policy = Arc::new(
-        DiffusionPolicy::load(equigym_agents::run::DEFAULT_POLICY_DIR.to_owned() + "/lift.safetensors").unwrap(),
-    );
+/// Episode k by hand with the noise `noise(latent dim, bound)` at every latent step. The
+/// episodes must match to the bit: an outcome on the arm turns on the last bits of a chunk.
+fn by_hand_from(cfg: &RunConfig, k: u64, mut noise: impl FnMut(usize, f64) -> Vec<f64>) -> bool {
+    let mut policy =
+        DiffusionPolicy::load(equigym_agents::run::DEFAULT_POLICY_DIR.to_owned() + "/lift.safetensors").unwrap();
+    policy.kernel = cfg.edp_kernel;
+    let policy = Arc::new(policy);
     let mut env = make_env(cfg, &policy).unwrap();
     env.reset(EVAL_SEED + k).unwrap();
     loop {
-        let w: Vec<f64> =
-            (0..env.latent_dim()).map(|_| (scale * rng.normal()).clamp(-env.bound(), env.bound())).collect();
+        let w = noise(env.latent_dim(), env.bound());
         let r = env.step(&w).unwrap();
         if r.success {
             return true;
@@ -88,8 +92,14 @@ fn a_checkpoint_is_evaluated_on_the_same_pinned_starts() {
     assert_eq!(trained, None);
     assert_eq!(one.successes.len(), 8);
     for k in [0u64, 5] {
-        let rng = Rng::new(cfg.seed, Stream::Eval, k);
-        assert_eq!(one.successes[k as usize], by_hand_from(&cfg, 1.0, rng, k), "episode {k}");
+        // One candidate as the evaluation draws it: float32 normals, clipped, over the bound.
+        let mut rng = Rng::new(cfg.seed, Stream::Eval, k);
+        let best_of_one = |dim, bound| {
+            let mut w = vec![0.0f32; dim];
+            candidates(&mut rng, bound, &mut w);
+            w.iter().map(|v| *v as f64 * bound).collect()
+        };
+        assert_eq!(one.successes[k as usize], by_hand_from(&cfg, k, best_of_one), "episode {k}");
     }
     // Fewer episodes are the first ones of the same starts; threads change nothing.
     let (_, three) = evaluate_checkpoint(&cfg, ActorNoise::BestOf(1), Some(3)).unwrap();
