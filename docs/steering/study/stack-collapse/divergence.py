@@ -28,6 +28,14 @@ THRESHOLDS = {"1 mm": 1e-3, "1 cm": 1e-2}
 FIRST_START = 10_000
 
 
+def note_parting(first: dict[str, int], a: np.ndarray, b: np.ndarray, step: int) -> None:
+    """Record the control step at which two rollouts' observations first part by each gap."""
+    gap = float(np.abs(a - b).max())
+    for name, threshold in THRESHOLDS.items():
+        if gap > threshold and name not in first:
+            first[name] = step
+
+
 def parted(first: dict[str, int], gap: str, episodes: int) -> str:
     """Episodes whose observations parted by ``gap``, and the median control step it happened."""
     steps = [s[gap] for s in first.values() if gap in s]
@@ -63,11 +71,7 @@ def edp_pair(task: str, starts: int) -> dict:
                 if info["success"] or terminated or truncated:
                     ended[name] = bool(info["success"])
             if len(obs) == 2:
-                gap = float(np.abs(obs["dense"] - obs["fourier"]).max())
-                step = envs["dense"].elapsed_steps
-                for name, th in THRESHOLDS.items():
-                    if gap > th and name not in first[k]:
-                        first[k][name] = step
+                note_parting(first[k], obs["dense"], obs["fourier"], envs["dense"].elapsed_steps)
         for name in envs:
             outcomes[name].append(ended[name])
     return {"label": "EDP, dense vs Fourier kernel", "a": outcomes["dense"], "b": outcomes["fourier"], "first": first}
@@ -100,10 +104,7 @@ def expert_pair(task: str, starts: int, noise: float) -> dict:
                 if info["success"] or terminated or truncated:
                     ended[name] = bool(info["success"])
             if len(obs) == 2:
-                gap = float(np.abs(obs["clean"] - obs["perturbed"]).max())
-                for name, th in THRESHOLDS.items():
-                    if gap > th and name not in first[k]:
-                        first[k][name] = step
+                note_parting(first[k], obs["clean"], obs["perturbed"], step)
             if len(ended) == 2:
                 break
         for name in outcomes:
