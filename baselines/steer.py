@@ -99,17 +99,19 @@ def build(
     preset: dict[str, Any],
     seed: int,
     joint_limits: bool,
-    policy_file: str | None,
+    policy: _core.DiffusionPolicy | str | None,
     terminate_on_success: bool = False,
-    edp_kernel: str | None = None,
 ) -> tuple[SAC, Any]:
+    """The agent and its env factory; ``policy`` is the latent envs' EDP (loaded, or a file; the
+    shipped one on the default kernel where None)."""
     env_kwargs: dict[str, Any] = {"joint_limits": joint_limits}
     if method == "sac":
         env_id = RAW_IDS[task]
         env_kwargs.update(action_mode="normalized", reward="sparse")
     else:
         env_id = LATENT_IDS[task]
-        env_kwargs["policy"] = load_policy(task, policy_file, edp_kernel)
+        if policy is not None:
+            env_kwargs["policy"] = policy
 
     def make() -> gymnasium.Env:
         # The env truncates at its own horizon (400 control steps).
@@ -360,8 +362,8 @@ def run(
     ckpt = run_dir / "checkpoint"
     ckpt.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(1)
-    model, make = build(method, task, preset, seed, joint_limits, policy_file, terminate_on_success, edp_kernel)
-    kernel = None if method == "sac" else load_policy(task, policy_file, edp_kernel).kernel
+    policy = None if method == "sac" else load_policy(task, policy_file, edp_kernel)
+    model, make = build(method, task, preset, seed, joint_limits, policy, terminate_on_success)
     chunk = 1 if method == "sac" else 4
     meta = {
         "agent": "sb3",
@@ -379,7 +381,7 @@ def run(
         **({"terminate_on_success": True} if terminate_on_success else {}),
         # named where not dense, as the Rust runner does (runs recorded before the Fourier kernel
         # name none)
-        **({"edp_kernel": kernel} if kernel and kernel != UNNAMED_EDP_KERNEL else {}),
+        **({"edp_kernel": policy.kernel} if policy and policy.kernel != UNNAMED_EDP_KERNEL else {}),
         "params_actor": count_parameters(model.actor),
         "params_critic": count_parameters(model.critic),
     }

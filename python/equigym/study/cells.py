@@ -72,7 +72,7 @@ class Cell:
     #: How the EDP's regular-to-regular layers run (``equigym.steer.EDP_KERNELS``; the runs and
     #: their control arms alike): dense unless a cell names another, since the cells were begun
     #: before the Fourier kernel became the runtime's default.
-    edp_kernel: str = "dense"
+    edp_kernel: str = UNNAMED_EDP_KERNEL
 
     def policy_path(self) -> str:
         return self.policy or f"assets/edp/{self.task}.safetensors"
