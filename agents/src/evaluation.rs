@@ -17,6 +17,7 @@
 
 use std::sync::Arc;
 
+use equigym_envs::ACTION_DIM;
 use equigym_wrappers::latent::LatentBatchEnv;
 use equigym_wrappers::steerability::Rate;
 use equigym_wrappers::DEFAULT_LATENT_BOUND;
@@ -29,13 +30,30 @@ use crate::run::{make_batch, member_obs, RunConfig};
 /// Seed of evaluation episode 0; episode k starts from seed `EVAL_SEED + k`.
 pub const EVAL_SEED: u64 = 10_000;
 
-/// Per-episode successes of an evaluation, the primitive env steps it ran and the moments of
-/// the latent noise it chose.
+/// A chunk whose commanded hand position (the mean of its actions' positions) moved less than
+/// this from the previous chunk's counts as stalled (metres). The EDP's loop, run on a noise that
+/// is a function of the state alone, can settle where each chunk commands the pose it starts
+/// from (docs/steering.md, "Why Stack D1 falls as training starts"); with fresh N(0, I) noise
+/// per chunk its failing episodes move by centimetres per chunk.
+pub const STALL_MOVE: f64 = 0.002;
+
+/// Per-episode successes of an evaluation, the primitive env steps it ran, the moments of the
+/// latent noise it chose and how much of each episode stalled.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Episodes {
     pub successes: Vec<bool>,
     pub env_steps: u64,
     pub noise: NoiseMoments,
+    /// Per episode: chunk-to-chunk moves of the commanded hand position, and how many of them
+    /// were below [`STALL_MOVE`].
+    pub moves: Vec<ChunkMoves>,
+}
+
+/// Chunk-to-chunk moves of one episode's commanded hand position.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ChunkMoves {
+    pub moves: u32,
+    pub stalled: u32,
 }
 
 /// First and second moments of the latents an evaluation chose (latent units, clipped to the
@@ -66,10 +84,16 @@ impl NoiseMoments {
         self.count += 1;
     }
 
+    /// The mean latent, per coordinate (its direction says which of the chunk's coordinates a
+    /// state-independent preference moves).
+    pub fn mean(&self) -> Vec<f64> {
+        let n = self.count.max(1) as f64;
+        self.sum.iter().map(|s| s / n).collect()
+    }
+
     /// Norm of the mean latent.
     pub fn mean_norm(&self) -> f64 {
-        let n = self.count.max(1) as f64;
-        self.sum.iter().map(|s| (s / n).powi(2)).sum::<f64>().sqrt()
+        self.mean().iter().map(|m| m * m).sum::<f64>().sqrt()
     }
 
     /// Root mean square of a coordinate.
@@ -82,6 +106,33 @@ impl Episodes {
     pub fn rate(&self) -> f64 {
         self.successes.iter().filter(|s| **s).count() as f64 / self.successes.len().max(1) as f64
     }
+
+    /// Over the failing episodes, the mean share of their chunk-to-chunk moves that stalled
+    /// (`None` without a failing episode that moved).
+    pub fn failures_stalled(&self) -> Option<f64> {
+        let shares: Vec<f64> = self
+            .successes
+            .iter()
+            .zip(&self.moves)
+            .filter(|(ok, m)| !**ok && m.moves > 0)
+            .map(|(_, m)| m.stalled as f64 / m.moves as f64)
+            .collect();
+        (!shares.is_empty()).then(|| shares.iter().sum::<f64>() / shares.len() as f64)
+    }
+}
+
+/// The commanded hand position of a chunk of absolute actions: the mean of its actions'
+/// positions.
+fn commanded_position(chunk: &[f64]) -> [f64; 3] {
+    let mut p = [0.0; 3];
+    let actions = chunk.chunks_exact(ACTION_DIM);
+    let n = actions.len().max(1) as f64;
+    for a in actions {
+        for (pi, ai) in p.iter_mut().zip(a) {
+            *pi += ai / n;
+        }
+    }
+    p
 }
 
 /// Fills the latents of the running episodes: `(active indices, their observations, latents)`.
@@ -101,6 +152,8 @@ pub(crate) fn run_episodes(envs: &mut LatentBatchEnv, choose: &mut Choose<'_>) -
     let mut successes = vec![false; episodes];
     let mut env_steps = 0u64;
     let mut noise = NoiseMoments::default();
+    let mut moves = vec![ChunkMoves::default(); episodes];
+    let mut commanded: Vec<Option<[f64; 3]>> = vec![None; episodes];
     let (mut latents, mut rows) = (Vec::new(), vec![0.0; episodes * ad]);
     while active.contains(&true) {
         let idx: Vec<usize> = (0..episodes).filter(|k| active[*k]).collect();
@@ -114,14 +167,23 @@ pub(crate) fn run_episodes(envs: &mut LatentBatchEnv, choose: &mut Choose<'_>) -
         envs.step_masked(&rows, &active)?;
         for &k in &idx {
             let r = envs.last_step(k).unwrap_or_default();
-            env_steps += envs.env(k).map_or(0, |e| e.last_executed()) as u64;
+            if let Some(e) = envs.env(k) {
+                env_steps += e.last_executed() as u64;
+                let now = commanded_position(e.last_chunk());
+                if let Some(before) = commanded[k] {
+                    let d = now.iter().zip(&before).map(|(a, b)| (a - b) * (a - b)).sum::<f64>().sqrt();
+                    moves[k].moves += 1;
+                    moves[k].stalled += u32::from(d < STALL_MOVE);
+                }
+                commanded[k] = Some(now);
+            }
             successes[k] |= r.success;
             if r.success || r.terminated || r.truncated {
                 active[k] = false;
             }
         }
     }
-    Ok(Episodes { successes, env_steps, noise })
+    Ok(Episodes { successes, env_steps, noise, moves })
 }
 
 /// The base policy on a run's evaluation starts, with latent noise N(0, scale^2 I) clipped to

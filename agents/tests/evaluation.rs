@@ -4,7 +4,7 @@
 
 use std::sync::Arc;
 
-use equigym_agents::evaluation::{evaluate_base, EVAL_SEED};
+use equigym_agents::evaluation::{evaluate_base, ChunkMoves, Episodes, NoiseMoments, EVAL_SEED, STALL_MOVE};
 use equigym_agents::rng::{Rng, Stream};
 use equigym_agents::run::{evaluate_checkpoint, make_env, ActorNoise};
 use equigym_agents::sac::candidates;
@@ -27,21 +27,39 @@ fn by_hand(cfg: &RunConfig, scale: f64, k: u64) -> bool {
 
 /// Episode k by hand with the noise `noise(latent dim, bound)` at every latent step. The
 /// episodes must match to the bit: an outcome on the arm turns on the last bits of a chunk.
-fn by_hand_from(cfg: &RunConfig, k: u64, mut noise: impl FnMut(usize, f64) -> Vec<f64>) -> bool {
+fn by_hand_from(cfg: &RunConfig, k: u64, noise: impl FnMut(usize, f64) -> Vec<f64>) -> bool {
+    by_hand_moves(cfg, k, noise).0
+}
+
+/// [`by_hand_from`], with the chunk-to-chunk moves of the commanded hand position (the mean of
+/// the chunk's positions), counted as the evaluation documents them.
+fn by_hand_moves(cfg: &RunConfig, k: u64, mut noise: impl FnMut(usize, f64) -> Vec<f64>) -> (bool, ChunkMoves) {
     let mut policy =
         DiffusionPolicy::load(equigym_agents::run::DEFAULT_POLICY_DIR.to_owned() + "/lift.safetensors").unwrap();
     policy.kernel = cfg.edp_kernel;
     let policy = Arc::new(policy);
     let mut env = make_env(cfg, &policy).unwrap();
     env.reset(EVAL_SEED + k).unwrap();
+    let (mut moves, mut before) = (ChunkMoves::default(), None::<[f64; 3]>);
     loop {
         let w = noise(env.latent_dim(), env.bound());
         let r = env.step(&w).unwrap();
+        let actions: Vec<&[f64]> = env.last_chunk().chunks_exact(equigym_envs::ACTION_DIM).collect();
+        let mut now = [0.0; 3];
+        for (i, p) in now.iter_mut().enumerate() {
+            *p = actions.iter().map(|a| a[i] / actions.len() as f64).sum();
+        }
+        if let Some(b) = before {
+            let d = (0..3).map(|i| (now[i] - b[i]).powi(2)).sum::<f64>().sqrt();
+            moves.moves += 1;
+            moves.stalled += u32::from(d < STALL_MOVE);
+        }
+        before = Some(now);
         if r.success {
-            return true;
+            return (true, moves);
         }
         if r.terminated || r.truncated {
-            return false;
+            return (false, moves);
         }
     }
 }
@@ -99,8 +117,11 @@ fn a_checkpoint_is_evaluated_on_the_same_pinned_starts() {
             candidates(&mut rng, bound, &mut w);
             w.iter().map(|v| *v as f64 * bound).collect()
         };
-        assert_eq!(one.successes[k as usize], by_hand_from(&cfg, k, best_of_one), "episode {k}");
+        let (success, moves) = by_hand_moves(&cfg, k, best_of_one);
+        assert_eq!(one.successes[k as usize], success, "episode {k}");
+        assert_eq!(one.moves[k as usize], moves, "episode {k}: chunk-to-chunk moves");
     }
+    assert!(one.moves.iter().all(|m| m.moves > 0), "every episode runs more than one chunk");
     // Fewer episodes are the first ones of the same starts; threads change nothing.
     let (_, three) = evaluate_checkpoint(&cfg, ActorNoise::BestOf(1), Some(3)).unwrap();
     assert_eq!(three.successes, one.successes[..3]);
@@ -111,4 +132,21 @@ fn a_checkpoint_is_evaluated_on_the_same_pinned_starts() {
         assert_eq!(a, evaluate_checkpoint(&two_threads, noise, Some(4)).unwrap(), "{noise:?}");
     }
     let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn the_stalled_share_reads_the_failing_episodes_only() {
+    let m = |moves, stalled| ChunkMoves { moves, stalled };
+    let episodes = |successes: Vec<bool>, moves: Vec<ChunkMoves>| Episodes {
+        successes,
+        env_steps: 0,
+        noise: NoiseMoments::default(),
+        moves,
+    };
+    // Two failures (a half and all of their chunks stalled); the success's stalls do not count.
+    let e = episodes(vec![false, true, false], vec![m(10, 5), m(8, 8), m(4, 4)]);
+    assert_eq!(e.failures_stalled(), Some(0.75));
+    // No failing episode, or none that moved: no share.
+    assert_eq!(episodes(vec![true], vec![m(3, 3)]).failures_stalled(), None);
+    assert_eq!(episodes(vec![false], vec![m(0, 0)]).failures_stalled(), None);
 }

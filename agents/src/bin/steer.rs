@@ -255,6 +255,8 @@ fn eval_run(cfg: &RunConfig, noise: ActorNoise, episodes: Option<usize>) -> equi
         "wilson95": [rate.low, rate.high],
         "noise_mean_norm": episodes.noise.mean_norm(),
         "noise_rms": episodes.noise.rms(),
+        "noise_mean": episodes.noise.mean(),
+        "failures_stalled": episodes.failures_stalled(),
     });
     println!("{line}");
     Ok(())

@@ -11,7 +11,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/../../../.."
 here=docs/steering/study/stack-collapse
-R="--method equi --task stack --seed 0 --eval-every 4000 --terminate-on-success --noise-aliased --target-entropy 20 --policy assets/edp/stack.safetensors"
+R="--method equi --task stack --seed 0 --eval-every 4000 --terminate-on-success --noise-aliased --target-entropy 20 --policy assets/edp/stack.safetensors --edp-kernel dense"
 study=docs/steering/study/runs/stack
 test -f $study/stack/equi/seed0/checkpoint.bin || { echo "needs the study's Stack seed-0 Equi-DSRL checkpoint (python -m equigym.study run --parts table1)" >&2; exit 1; }
 out=$here/evals.jsonl
