@@ -59,12 +59,13 @@ def rollout(
     last = None
     success = False
     while True:
-        shifted = np.clip(w + shift, -env.bound, env.bound)
-        if shift.any():
-            plain = np.asarray(env.decode(np.clip(w, -env.bound, env.bound))).reshape(-1, ACTION_DIM)
-            effect.append((np.asarray(env.decode(shifted)).reshape(-1, ACTION_DIM) - plain).mean(axis=0))
-        _, _, terminated, truncated, info = env.step(shifted)
-        target = np.asarray(env.last_chunk()).reshape(-1, ACTION_DIM)[:, POSITION].mean(axis=0)
+        # The unshifted noise's chunk at this state, before the step moves it on.
+        plain = np.asarray(env.decode(np.clip(w, -env.bound, env.bound))) if shift.any() else None
+        _, _, terminated, truncated, info = env.step(np.clip(w + shift, -env.bound, env.bound))
+        chunk = np.asarray(env.last_chunk())
+        if plain is not None:
+            effect.append((chunk - plain).reshape(-1, ACTION_DIM).mean(axis=0))
+        target = chunk.reshape(-1, ACTION_DIM)[:, POSITION].mean(axis=0)
         if last is not None:
             moves.append(float(np.linalg.norm(target - last)))
         last = target
