@@ -46,10 +46,9 @@ def chunks_per_s(policy, obs: np.ndarray, w: np.ndarray, seconds: float) -> floa
 def outcomes_table(episodes: int, threads: int) -> list[str]:
     """The base policy's episodes on each kernel, paired by start: the rollouts' sensitivity to
     the last bits of a chunk (McNemar's exact test on the discordant starts)."""
-    from scipy.stats import binomtest
-
     from equigym import DiffusionPolicy, _core
     from equigym.latent import shipped_policy
+    from equigym.steer.stats import mcnemar_p
 
     lines = [
         "",
@@ -75,7 +74,7 @@ def outcomes_table(episodes: int, threads: int) -> list[str]:
         dense_only = sum(d and not f for d, f in pairs)
         fourier_only = sum(f and not d for d, f in pairs)
         differ = dense_only + fourier_only
-        p = binomtest(dense_only, differ, 0.5).pvalue if differ else 1.0
+        p = mcnemar_p(dense_only, fourier_only)
         lines.append(
             f"| {task} | {sum(out['dense'])}/{episodes} | {sum(out['fourier'])}/{episodes} | "
             f"{differ} ({differ / episodes:.0%}) | {dense_only} / {fourier_only} | {p:.2f} |"

@@ -282,6 +282,11 @@ def bench_edp(args):
 
 # ---------------------------------------------------------------- report
 
+#: The PyTorch float32 column of ``baselines.edp.benchmark``'s rows (``baselines.edp.BENCH_TORCH32``,
+#: restated because the report reads the results file without importing torch and escnn).
+TORCH32_COLUMN = "pytorch (float32)"
+
+
 def rust_chunks(row):
     """The Rust runtime's chunks/s in a row of ``baselines.edp.benchmark``: its first column, the
     runtime's default kernel (the committed suite.json's rows name it by their build's label)."""
@@ -338,7 +343,7 @@ def latent_section(m, latent, edp):
               "| batch | " + " | ".join(keys) + " | Rust / PyTorch float32 |", "|---:|" + "---:|" * (len(keys) + 1)]
         for r in rows:
             L.append(f"| {r['batch']} | " + " | ".join(fmt(r[k]) for k in keys)
-                     + f" | {ratio(rust_chunks(r), r.get('pytorch (float32)'), '.2f')} |")
+                     + f" | {ratio(rust_chunks(r), r.get(TORCH32_COLUMN), '.2f')} |")
     elif edp:
         L += ["", f"EDP inference: {edp.get('error', 'not measured')}"]
     return L
@@ -544,7 +549,7 @@ def readme_block(meta, single, pandagym, vector, plot_rel, latent=None, edp=None
     rows = get(edp, "rows")
     if rows:
         L += ["", "EDP chunks/s, one thread: " + "; ".join(
-            f"batch {r['batch']}: Rust {fmt(rust_chunks(r))} vs PyTorch {fmt(r['pytorch (float32)'])} (float32)"
+            f"batch {r['batch']}: Rust {fmt(rust_chunks(r))} vs PyTorch {fmt(r[TORCH32_COLUMN])} (float32)"
             for r in rows) + "."]
     L += ["", f"![performance suite]({plot_rel})", "", README_END]
     return "\n".join(L)

@@ -120,3 +120,16 @@ def test_stats_share_one_statistic_and_one_text_form():
     assert text.startswith("30/60 = 0.500 [") and low < 0.5 < high and high - low < 0.3
     assert format_pooled(30, 60, counts=False) == text.removeprefix("30/60 = ")
     assert format_pooled(0, 0) == "-"
+
+
+def test_mcnemar_is_the_exact_two_sided_sign_test_on_discordant_starts():
+    """Only the starts that end differently count; p is twice the binomial tail at 1/2 (1 of 10
+    discordant starts one way: 2 * (1 + 10) / 2^10), the same either way round, 1 without any."""
+    pytest.importorskip("scipy")
+    from equigym.steer.stats import mcnemar_p
+
+    assert mcnemar_p(1, 9) == pytest.approx(2 * 11 / 1024)
+    assert mcnemar_p(9, 1) == pytest.approx(mcnemar_p(1, 9))
+    assert mcnemar_p(0, 5) == pytest.approx(2 / 32)
+    assert mcnemar_p(4, 4) == 1.0
+    assert mcnemar_p(0, 0) == 1.0

@@ -1,5 +1,6 @@
-"""The statistics every steering table reports: mean +- standard error over seeds and Wilson
-intervals on pooled episodes, as numbers and in the one text form the tables share.
+"""The statistics every steering table reports: mean +- standard error over seeds, Wilson
+intervals on pooled episodes and McNemar's exact test on paired ones, as numbers and in the one
+text form the tables share.
 
 It sits below every other module of :mod:`equigym.steer` and :mod:`equigym.study` (it imports
 neither), so that the sweep report, the control-arm comparison and the study report format a
@@ -42,3 +43,13 @@ def format_pooled(wins: int, n: int, counts: bool = True) -> str:
         return "-"
     low, high = _core.wilson(wins, n)
     return (f"{wins}/{n} = " if counts else "") + f"{wins / n:.3f} [{low:.3f}, {high:.3f}]"
+
+
+def mcnemar_p(a_only: int, b_only: int) -> float:
+    """McNemar's exact two-sided p for two arms run on the same starts: ``a_only`` starts succeed
+    with the first arm only, ``b_only`` with the second only (the starts both win or both lose say
+    nothing of the difference); 1 without a discordant start. Needs scipy (the ``train`` extra)."""
+    from scipy.stats import binomtest
+
+    n = a_only + b_only
+    return float(binomtest(a_only, n, 0.5).pvalue) if n else 1.0

@@ -24,8 +24,13 @@ for m in dsrl equi approx; do
 done
 python - "$out" > $here/noise-means.md <<'PY'
 import json, sys
+from equigym import _core
 rows = [json.loads(line) for line in open(sys.argv[1])]
-# The chunk's invariant coordinates under the planar rotation: each action's z (index 2) and gripper width (9).
+# The chunk's invariant coordinates under the planar rotation: each action's z and gripper width,
+# found by name in the task's action layout.
+spec = _core.Env("stack").spec
+field = {f["name"]: f["start"] for f in spec.action_layout}
+D, Z, G = spec.action_dim, field["position"] + 2, field["gripper_width"]
 print("# The Stack D1 learners' mean noise\n")
 print("`bash docs/steering/study/stack-collapse/noise-means.sh`: each learner as a policy (its actor's samples, or its mean) on 200 "
       "pinned starts; the mean of every noise it picked (latent units, clipped to the box), its norm, the norm of its "
@@ -38,9 +43,9 @@ for r in rows:
     if r["trained"] and r["trained_env_steps"] != 32000:
         continue  # a run still in progress
     m = r["noise_mean"]
-    inv = [m[10 * a + i] for a in range(len(m) // 10) for i in (2, 9)]
-    z = " ".join(f"{m[10 * a + 2]:+.2f}" for a in range(len(m) // 10))
-    g = " ".join(f"{m[10 * a + 9]:+.2f}" for a in range(len(m) // 10))
+    inv = [m[D * a + i] for a in range(len(m) // D) for i in (Z, G)]
+    z = " ".join(f"{m[D * a + Z]:+.2f}" for a in range(len(m) // D))
+    g = " ".join(f"{m[D * a + G]:+.2f}" for a in range(len(m) // D))
     label = r["method"] + ("" if r["trained"] else ", untrained")
     stalled = "-" if r["failures_stalled"] is None else f"{r['failures_stalled']:.3f}"
     print(f"| {label} | {r['seed']} | {r['actor']} | {r['rate']:.3f} | {stalled} | {r['noise_mean_norm']:.2f} | {sum(x * x for x in inv) ** 0.5:.2f} | {z} | {g} |")

@@ -32,18 +32,20 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import binomtest
 
 HERE = Path(__file__).resolve().parent
 #: AR(1) coefficients of the correlated arms (0: the base).
 RHOS = (0.0, 0.5, 0.9, 1.0)
-#: The shifted arm's offsets per action of the chunk (index in the 10-d action, value in latent units).
-SHIFT = {2: 0.35, 9: -0.3}
+#: The shifted arm's offsets per action of the chunk: (action field, index in it) -> latent units.
+SHIFT = {("position", 2): 0.35, ("gripper_width", 0): -0.3}
 #: The move below which a chunk counts as stalled (agents' ``STALL_MOVE``), metres.
 STALL_M = 0.002
-#: Action layout: the hand position's coordinates in each 10-d action.
-POSITION = slice(0, 3)
-ACTION_DIM = 10
+
+
+def action_field(env, name: str) -> slice:
+    """Where the action field ``name`` lies in one action (the task's action layout)."""
+    f = next(f for f in env.spec.action_layout if f["name"] == name)
+    return slice(f["start"], f["start"] + f["len"])
 
 
 def rollout(
@@ -53,6 +55,7 @@ def rollout(
     a shift, what it does to each chunk (the shifted noise's chunk minus the unshifted one's at
     the same state, per action coordinate, averaged over the chunk's actions) goes to ``effect``."""
     rng = np.random.default_rng(k)
+    position = action_field(env, "position")
     env.reset(start)
     w = rng.standard_normal(env.latent_dim)
     moves: list[float] = []
@@ -64,8 +67,8 @@ def rollout(
         _, _, terminated, truncated, info = env.step(np.clip(w + shift, -env.bound, env.bound))
         chunk = np.asarray(env.last_chunk())
         if plain is not None:
-            effect.append((chunk - plain).reshape(-1, ACTION_DIM).mean(axis=0))
-        target = chunk.reshape(-1, ACTION_DIM)[:, POSITION].mean(axis=0)
+            effect.append((chunk - plain).reshape(-1, env.spec.action_dim).mean(axis=0))
+        target = chunk.reshape(-1, env.spec.action_dim)[:, position].mean(axis=0)
         if last is not None:
             moves.append(float(np.linalg.norm(target - last)))
         last = target
@@ -89,7 +92,7 @@ def arm(env, episodes: int, rho: float, shift: np.ndarray) -> dict:
 
 
 def row(label: str, res: dict, base: list[bool] | None) -> str:
-    from equigym.steer.stats import format_pooled
+    from equigym.steer.stats import format_pooled, mcnemar_p
 
     o = res["outcomes"]
     if base is None:
@@ -97,9 +100,7 @@ def row(label: str, res: dict, base: list[bool] | None) -> str:
     else:
         base_only = sum(b and not x for b, x in zip(base, o))
         arm_only = sum(x and not b for b, x in zip(base, o))
-        n = base_only + arm_only
-        p = binomtest(base_only, n, 0.5).pvalue if n else 1.0
-        vs = f"| {base_only} / {arm_only} | {p:.3f} "
+        vs = f"| {base_only} / {arm_only} | {mcnemar_p(base_only, arm_only):.3f} "
     fails = len(res["stalled"])
     stalled = f"{statistics.mean(res['stalled']):.2f}" if fails else "-"
     move = f"{1000 * statistics.median(res['moves']):.1f}" if fails else "-"
@@ -120,8 +121,8 @@ def main() -> None:
     env = _core.LatentEnv(a.task, policy, variant=policy.metadata.get("variant") or None)
     shift = np.zeros(env.latent_dim)
     for t in range(env.chunk_len):
-        for i, v in SHIFT.items():
-            shift[t * ACTION_DIM + i] = v
+        for (name, i), v in SHIFT.items():
+            shift[t * env.spec.action_dim + action_field(env, name).start + i] = v
     started = time.time()
     lines = [
         f"# What the EDP needs of its noise ({a.task})",
@@ -156,10 +157,12 @@ def main() -> None:
             base = res["outcomes"]
         if res["effect"]:
             e = np.mean(res["effect"], axis=0)
+            x, y, z = 1000 * e[action_field(env, "position")]
+            (width,) = 1000 * e[action_field(env, "gripper_width")]
             effects.append(
                 f"The shifted arm's chunks against the unshifted noise's at the same states (mean over "
-                f"{len(res['effect'])} chunks): commanded height {1000 * e[2]:+.1f} mm, gripper width "
-                f"{1000 * e[9]:+.1f} mm, planar position ({1000 * e[0]:+.1f}, {1000 * e[1]:+.1f}) mm."
+                f"{len(res['effect'])} chunks): commanded height {z:+.1f} mm, gripper width "
+                f"{width:+.1f} mm, planar position ({x:+.1f}, {y:+.1f}) mm."
             )
     lines += ["", *effects, "", f"{time.time() - started:.0f} s on one thread."]
     Path(a.out or HERE / f"noise-{a.task}.md").write_text("\n".join(lines) + "\n")
