@@ -35,6 +35,6 @@ pub mod run;
 pub mod sac;
 
 pub use error::{Error, Result};
-pub use evaluation::{evaluate_base, BaseEvaluation, EVAL_SEED};
+pub use evaluation::{evaluate_base, BaseEvaluation, EVAL_SEED, STALL_MOVE};
 pub use models::Method;
 pub use run::{run, Preset, RunConfig, RunSummary, TimeSplit};

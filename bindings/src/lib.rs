@@ -278,6 +278,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(steer::evaluate_base, m)?)?;
     m.add_function(wrap_pyfunction!(wilson, m)?)?;
     m.add("EVAL_SEED", equigym_agents::EVAL_SEED)?;
+    m.add("STALL_MOVE", equigym_agents::STALL_MOVE)?;
     m.add("TASK_IDS", TASK_IDS.to_vec())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

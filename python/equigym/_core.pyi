@@ -22,6 +22,7 @@ __all__ = [
     "evaluate_base",
     "wilson",
     "EVAL_SEED",
+    "STALL_MOVE",
     "TASK_IDS",
     "__version__",
 ]
@@ -31,6 +32,9 @@ TASK_IDS: list[str]
 #: Seed of evaluation episode 0: episode k of every evaluation (steering runs, base policy,
 #: narrow-noise controls) starts from seed ``EVAL_SEED + k``.
 EVAL_SEED: int
+#: A chunk whose commanded hand position (its actions' mean position) moved less than this
+#: from the previous chunk's counts as stalled (metres; ``failures_stalled`` of ``steer eval``).
+STALL_MOVE: float
 
 # Environment options (``**options`` below) are declared once, in Rust
 # (``equigym_envs::EnvOptions``); ``equigym.envs.OPTIONS_DOC`` documents them.

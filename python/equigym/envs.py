@@ -61,6 +61,12 @@ def episode_seed(env: gymnasium.Env, seed: int | None) -> int:
     return int(seed) if seed is not None else int(env.np_random.integers(0, 2**63 - 1))
 
 
+def layout_slices(layout: list[dict[str, Any]]) -> dict[str, slice]:
+    """Field name -> slice of one row, for a layout as ``EnvSpec`` gives it
+    (``spec.observation_layout`` or ``spec.action_layout``)."""
+    return {f["name"]: slice(f["start"], f["start"] + f["len"]) for f in layout}
+
+
 class SpecLayouts:
     """The layout metadata of ``self.core.spec`` (one environment, or each row of a batch), for
     agents and symmetry tools."""
@@ -70,7 +76,7 @@ class SpecLayouts:
     @property
     def observation_fields(self) -> dict[str, slice]:
         """Observation field name -> slice (of one row)."""
-        return {f["name"]: slice(f["start"], f["start"] + f["len"]) for f in self.core.spec.observation_layout}
+        return layout_slices(self.core.spec.observation_layout)
 
     @property
     def observation_layout(self) -> list[dict[str, Any]]:

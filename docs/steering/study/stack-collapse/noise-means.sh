@@ -25,12 +25,13 @@ done
 python - "$out" > $here/noise-means.md <<'PY'
 import json, sys
 from equigym import _core
+from equigym.envs import layout_slices
 rows = [json.loads(line) for line in open(sys.argv[1])]
 # The chunk's invariant coordinates under the planar rotation: each action's z and gripper width,
 # found by name in the task's action layout.
 spec = _core.Env("stack").spec
-field = {f["name"]: f["start"] for f in spec.action_layout}
-D, Z, G = spec.action_dim, field["position"] + 2, field["gripper_width"]
+field = layout_slices(spec.action_layout)
+D, Z, G = spec.action_dim, field["position"].start + 2, field["gripper_width"].start
 print("# The Stack D1 learners' mean noise\n")
 print("`bash docs/steering/study/stack-collapse/noise-means.sh`: each learner as a policy (its actor's samples, or its mean) on 200 "
       "pinned starts; the mean of every noise it picked (latent units, clipped to the box), its norm, the norm of its "

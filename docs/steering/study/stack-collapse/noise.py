@@ -38,24 +38,16 @@ HERE = Path(__file__).resolve().parent
 RHOS = (0.0, 0.5, 0.9, 1.0)
 #: The shifted arm's offsets per action of the chunk: (action field, index in it) -> latent units.
 SHIFT = {("position", 2): 0.35, ("gripper_width", 0): -0.3}
-#: The move below which a chunk counts as stalled (agents' ``STALL_MOVE``), metres.
-STALL_M = 0.002
-
-
-def action_field(env, name: str) -> slice:
-    """Where the action field ``name`` lies in one action (the task's action layout)."""
-    f = next(f for f in env.spec.action_layout if f["name"] == name)
-    return slice(f["start"], f["start"] + f["len"])
 
 
 def rollout(
-    env, start: int, k: int, rho: float, shift: np.ndarray, effect: list[np.ndarray]
+    env, start: int, k: int, rho: float, shift: np.ndarray, effect: list[np.ndarray], position: slice
 ) -> tuple[bool, list[float]]:
     """One episode; its outcome and the commanded hand position's move from chunk to chunk. With
     a shift, what it does to each chunk (the shifted noise's chunk minus the unshifted one's at
-    the same state, per action coordinate, averaged over the chunk's actions) goes to ``effect``."""
+    the same state, per action coordinate, averaged over the chunk's actions) goes to ``effect``.
+    ``position``: the hand position's slice of one action."""
     rng = np.random.default_rng(k)
-    position = action_field(env, "position")
     env.reset(start)
     w = rng.standard_normal(env.latent_dim)
     moves: list[float] = []
@@ -78,15 +70,15 @@ def rollout(
         w = rho * w + math.sqrt(1.0 - rho * rho) * rng.standard_normal(env.latent_dim)
 
 
-def arm(env, episodes: int, rho: float, shift: np.ndarray) -> dict:
+def arm(env, episodes: int, rho: float, shift: np.ndarray, position: slice) -> dict:
     from equigym import _core
 
     outcomes, stalled, moves, effect = [], [], [], []
     for k in range(episodes):
-        ok, m = rollout(env, _core.EVAL_SEED + k, k, rho, shift, effect)
+        ok, m = rollout(env, _core.EVAL_SEED + k, k, rho, shift, effect, position)
         outcomes.append(ok)
         if not ok and m:
-            stalled.append(sum(x < STALL_M for x in m) / len(m))
+            stalled.append(sum(x < _core.STALL_MOVE for x in m) / len(m))
             moves.append(statistics.median(m))
     return {"outcomes": outcomes, "stalled": stalled, "moves": moves, "effect": effect}
 
@@ -109,6 +101,7 @@ def row(label: str, res: dict, base: list[bool] | None) -> str:
 
 def main() -> None:
     from equigym import DiffusionPolicy, _core
+    from equigym.envs import layout_slices
     from equigym.latent import shipped_policy
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -119,10 +112,11 @@ def main() -> None:
     a = p.parse_args()
     policy = DiffusionPolicy(shipped_policy(a.task), kernel=a.edp_kernel)
     env = _core.LatentEnv(a.task, policy, variant=policy.metadata.get("variant") or None)
+    fields = layout_slices(env.spec.action_layout)
     shift = np.zeros(env.latent_dim)
     for t in range(env.chunk_len):
         for (name, i), v in SHIFT.items():
-            shift[t * env.spec.action_dim + action_field(env, name).start + i] = v
+            shift[t * env.spec.action_dim + fields[name].start + i] = v
     started = time.time()
     lines = [
         f"# What the EDP needs of its noise ({a.task})",
@@ -131,7 +125,7 @@ def main() -> None:
         f"--edp-kernel {a.edp_kernel}`: the shipped EDP on the pinned starts {_core.EVAL_SEED} + k, the same "
         "noise stream in every arm (the script's docstring says how each arm draws it). *Ends the other way*: "
         "starts that succeed with the base only / with the arm only, and McNemar's exact p. *Stalled*: among the "
-        f"failures, the mean share of their chunks whose commanded hand position moved less than {1000 * STALL_M:g} "
+        f"failures, the mean share of their chunks whose commanded hand position moved less than {1000 * _core.STALL_MOVE:g} "
         "mm from the previous chunk's; *move*: the median over failures of their median move.",
         "",
         "| noise | success (Wilson 95 %) | ends the other way | p | failures | stalled | move (mm) |",
@@ -150,15 +144,15 @@ def main() -> None:
     if a.task == "stack":
         arms.append(("iid, shifted (z +0.35, gripper -0.3)", 0.0, shift))
     for label, rho, s in arms:
-        res = arm(env, a.episodes, rho, s)
+        res = arm(env, a.episodes, rho, s, fields["position"])
         lines.append(row(label, res, base))
         print(lines[-1], flush=True)
         if base is None:
             base = res["outcomes"]
         if res["effect"]:
             e = np.mean(res["effect"], axis=0)
-            x, y, z = 1000 * e[action_field(env, "position")]
-            (width,) = 1000 * e[action_field(env, "gripper_width")]
+            x, y, z = 1000 * e[fields["position"]]
+            (width,) = 1000 * e[fields["gripper_width"]]
             effects.append(
                 f"The shifted arm's chunks against the unshifted noise's at the same states (mean over "
                 f"{len(res['effect'])} chunks): commanded height {z:+.1f} mm, gripper width "
